@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Installs the Debian packages isotrace needs (idempotent; quiet when nothing is missing)
+# and configures + builds a Release build in ./build. openimageio-tools is listed because
+# Debian 12's OpenImageIO CMake config refers to its binaries and fails without them.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+packages=(build-essential cmake pkg-config
+          libembree-dev libopenimageio-dev openimageio-tools libtbb-dev
+          libtinygltf-dev nlohmann-json3-dev libstb-dev
+          libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
+          libopenvdb-dev libboost-iostreams-dev)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "isotrace: installing missing packages: ${missing[*]}" >&2
+  sudo_cmd=""
+  [ "$(id -u)" -ne 0 ] && sudo_cmd="sudo"
+  export DEBIAN_FRONTEND=noninteractive
+  $sudo_cmd apt-get update -qq >/dev/null
+  $sudo_cmd apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+if [ "${ISOTRACE_SKIP_BUILD:-0}" != "1" ]; then
+  cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+  cmake --build build -j2 -- --no-print-directory 2>&1 | grep -Ev '^\[ *[0-9]+%\]|^Consolidate|^Scanning' || true
+  test -x build/isotrace
+fi

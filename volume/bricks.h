@@ -1,0 +1,33 @@
+#pragma once
+// Min/max per brick of 8^3 cells (macro cells). A brick's range covers its own corner
+// samples, including those it shares with its neighbours, so a brick whose range does not
+// bracket the iso value cannot contain a crossing and never becomes an Embree primitive.
+#include <cstdint>
+#include <vector>
+
+#include "volume/grid.h"
+
+namespace iso {
+
+class BrickGrid {
+ public:
+  static constexpr int kCells = 8;  // cells per brick edge: 2 bytes of range per 512 cells
+
+  explicit BrickGrid(const Grid& grid);
+
+  Vec3i count() const { return m_count; }
+  size_t size() const { return m_lo.size(); }
+  // The cell range [begin, end) of brick b.
+  Vec3i cellBegin(uint32_t b) const;
+  Vec3i cellEnd(uint32_t b) const;
+  // Bricks that can hold a crossing of `iso` (min <= iso < max with inside meaning > iso).
+  std::vector<uint32_t> activeBricks(float iso) const;
+  size_t bytes() const { return m_lo.size() * 2 * sizeof(float); }
+
+ private:
+  Vec3i m_cellDims;
+  Vec3i m_count;
+  std::vector<float> m_lo, m_hi;
+};
+
+}  // namespace iso

@@ -1,0 +1,71 @@
+#include "volume/grid.h"
+
+#include <limits>
+
+namespace iso {
+
+const char* scalarTypeName(ScalarType type) {
+  switch (type) {
+    case ScalarType::UInt8: return "uint8";
+    case ScalarType::UInt16: return "uint16";
+    case ScalarType::Int16: return "int16";
+    case ScalarType::Float32: return "float32";
+  }
+  return "?";
+}
+
+size_t scalarTypeSize(ScalarType type) {
+  switch (type) {
+    case ScalarType::UInt8: return 1;
+    case ScalarType::UInt16: return 2;
+    case ScalarType::Int16: return 2;
+    case ScalarType::Float32: return 4;
+  }
+  return 0;
+}
+
+bool parseScalarType(const std::string& name, ScalarType& type) {
+  if (name == "uint8") type = ScalarType::UInt8;
+  else if (name == "uint16") type = ScalarType::UInt16;
+  else if (name == "int16") type = ScalarType::Int16;
+  else if (name == "float32" || name == "float") type = ScalarType::Float32;
+  else return false;
+  return true;
+}
+
+Grid::Grid(Vec3i dims, Storage samples, Vec3d origin, Vec3d spacing)
+    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_samples(std::move(samples)) {
+  m_type = static_cast<ScalarType>(m_samples.index());
+  std::visit([this](const auto& v) { m_data = v.data(); }, m_samples);
+}
+
+void Grid::cellCorners(int x, int y, int z, float out[8]) const {
+  const size_t sx = 1, sy = size_t(m_dims.x), sz = size_t(m_dims.x) * m_dims.y;
+  const size_t i = index(x, y, z);
+  const size_t offsets[8] = {0, sx, sy, sx + sy, sz, sx + sz, sy + sz, sx + sy + sz};
+  auto fetch = [&](const auto* p) {
+    for (int c = 0; c < 8; ++c) out[c] = float(p[i + offsets[c]]);
+  };
+  switch (m_type) {
+    case ScalarType::UInt8: fetch(static_cast<const uint8_t*>(m_data)); break;
+    case ScalarType::UInt16: fetch(static_cast<const uint16_t*>(m_data)); break;
+    case ScalarType::Int16: fetch(static_cast<const int16_t*>(m_data)); break;
+    case ScalarType::Float32: fetch(static_cast<const float*>(m_data)); break;
+  }
+}
+
+double Grid::sum() const {
+  double s = 0;
+  std::visit([&](const auto& v) { for (auto x : v) s += double(x); }, m_samples);
+  return s;
+}
+
+void Grid::range(float& lo, float& hi) const {
+  lo = std::numeric_limits<float>::infinity();
+  hi = -lo;
+  std::visit([&](const auto& v) {
+    for (auto x : v) { lo = std::min(lo, float(x)); hi = std::max(hi, float(x)); }
+  }, m_samples);
+}
+
+}  // namespace iso

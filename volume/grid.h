@@ -1,0 +1,70 @@
+#pragma once
+// A regular grid of scalar samples kept in its source type (uint8, uint16, int16, float32),
+// x fastest, with its placement in world space (origin of sample 0, spacing between samples).
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "volume/vec3.h"
+
+namespace iso {
+
+enum class ScalarType { UInt8, UInt16, Int16, Float32 };
+
+const char* scalarTypeName(ScalarType type);
+size_t scalarTypeSize(ScalarType type);
+// Accepts the names used by scene files and the Open SciVis convention; false if unknown.
+bool parseScalarType(const std::string& name, ScalarType& type);
+
+class Grid {
+ public:
+  using Storage = std::variant<std::vector<uint8_t>, std::vector<uint16_t>,
+                               std::vector<int16_t>, std::vector<float>>;
+
+  Grid() = default;
+  Grid(Vec3i dims, Storage samples, Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+
+  Vec3i dims() const { return m_dims; }
+  Vec3d origin() const { return m_origin; }
+  Vec3d spacing() const { return m_spacing; }
+  void setOrigin(Vec3d origin) { m_origin = origin; }
+  void setSpacing(Vec3d spacing) { m_spacing = spacing; }
+  ScalarType type() const { return m_type; }
+  size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
+  size_t bytes() const { return sampleCount() * scalarTypeSize(m_type); }
+
+  size_t index(int x, int y, int z) const {
+    return (size_t(z) * m_dims.y + size_t(y)) * m_dims.x + size_t(x);
+  }
+  // Every source type converts to float exactly (uint16/int16 fit in 24 bits of mantissa),
+  // so all cells sharing a corner see the same bits there.
+  float value(size_t i) const {
+    switch (m_type) {
+      case ScalarType::UInt8: return static_cast<const uint8_t*>(m_data)[i];
+      case ScalarType::UInt16: return static_cast<const uint16_t*>(m_data)[i];
+      case ScalarType::Int16: return static_cast<const int16_t*>(m_data)[i];
+      case ScalarType::Float32: return static_cast<const float*>(m_data)[i];
+    }
+    return 0.f;
+  }
+  float value(int x, int y, int z) const { return value(index(x, y, z)); }
+  // The 8 corners of cell (x, y, z); corner c = bit0 x, bit1 y, bit2 z.
+  void cellCorners(int x, int y, int z, float out[8]) const;
+
+  // Sum of all samples in double: a cheap fingerprint for loader tests.
+  double sum() const;
+  // Value range over all samples.
+  void range(float& lo, float& hi) const;
+
+ private:
+  Vec3i m_dims{0, 0, 0};
+  Vec3d m_origin{0, 0, 0};
+  Vec3d m_spacing{1, 1, 1};
+  ScalarType m_type = ScalarType::UInt8;
+  Storage m_samples;
+  const void* m_data = nullptr;
+};
+
+}  // namespace iso

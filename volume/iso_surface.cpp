@@ -1,0 +1,151 @@
+#include "volume/iso_surface.h"
+
+#include <cmath>
+
+namespace iso {
+
+IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec)
+    : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec),
+      m_active(bricks.activeBricks(float(iso))) {}
+
+template <bool AnyHit>
+bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear,
+                       double tfar, SurfaceHit* hit, TraversalStats& stats) const {
+  // Runs the traversal with the chosen intersector, in double for the reference and in
+  // float otherwise, and converts the hit to world space.
+  auto run = [&](auto real, const auto& solver) {
+    using Real = decltype(real);
+    const GridRay<Real> ray = toGridRay<Real>(m_grid, org, dir);
+    CellHit<Real> cellHit;
+    if (!traverseCells<AnyHit>(m_grid, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
+                               cellHit, stats))
+      return false;
+    if constexpr (!AnyHit) {
+      Real g[8];
+      loadCell(m_grid, cellHit.cell, Real(m_iso), g);
+      const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
+      const double len = length(grad);
+      hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir));
+      hit->t = double(cellHit.t);
+      hit->tError = double(cellHit.tError);
+      hit->tangent = cellHit.tangent;
+    }
+    return true;
+  };
+  switch (m_spec.kind) {
+    case IntersectorKind::Linear: return run(0.f, LinearIntersector{});
+    case IntersectorKind::Neubauer: return run(0.f, NeubauerIntersector{m_spec.iterations});
+    case IntersectorKind::Schwarze: return run(0.f, SchwarzeIntersector{});
+    case IntersectorKind::Isolation: return run(0.f, IsolationIntersector{m_spec.iterations});
+    case IntersectorKind::Reference: return run(0.0, ReferenceIntersector{});
+  }
+  return false;
+}
+
+bool IsoSurface::intersectBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
+                                double tfar, SurfaceHit& hit, TraversalStats& stats) const {
+  return query<false>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, &hit,
+                      stats);
+}
+
+bool IsoSurface::occludedBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
+                               double tfar, TraversalStats& stats) const {
+  return query<true>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, nullptr,
+                     stats);
+}
+
+bool IsoSurface::intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+                           SurfaceHit& hit, TraversalStats& stats) const {
+  // Bricks are independent, so the nearest hit over all active ones is the answer; each
+  // brick query is clipped to the nearest hit so far, as Embree does with ray.tfar.
+  bool found = false;
+  for (uint32_t b : m_active) {
+    SurfaceHit h;
+    if (intersectBrick(b, org, dir, tnear, tfar, h, stats)) {
+      hit = h;
+      tfar = h.t;
+      found = true;
+    }
+  }
+  return found;
+}
+
+bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+                          TraversalStats& stats) const {
+  for (uint32_t b : m_active)
+    if (occludedBrick(b, org, dir, tnear, tfar, stats)) return true;
+  return false;
+}
+
+void IsoSurface::brickBounds(uint32_t b, float lower[3], float upper[3]) const {
+  const Vec3i c0 = m_bricks.cellBegin(b), c1 = m_bricks.cellEnd(b);
+  const Vec3d o = m_grid.origin(), s = m_grid.spacing();
+  for (int a = 0; a < 3; ++a) {
+    const double lo = o[a] + c0[a] * s[a], hi = o[a] + c1[a] * s[a];
+    // Outward by a relative margin: Embree's box tests are not exact, the brick clip is.
+    const double pad = 1e-5 * (hi - lo) + 1e-6 * std::max(std::fabs(lo), std::fabs(hi));
+    lower[a] = std::nextafter(float(lo - pad), -INFINITY);
+    upper[a] = std::nextafter(float(hi + pad), INFINITY);
+  }
+}
+
+namespace {
+
+void boundsCallback(const RTCBoundsFunctionArguments* args) {
+  const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
+  float lo[3], hi[3];
+  surface->brickBounds(surface->activeBricks()[args->primID], lo, hi);
+  args->bounds_o->lower_x = lo[0]; args->bounds_o->lower_y = lo[1]; args->bounds_o->lower_z = lo[2];
+  args->bounds_o->upper_x = hi[0]; args->bounds_o->upper_y = hi[1]; args->bounds_o->upper_z = hi[2];
+}
+
+// isotrace traces single rays only (rtcIntersect1/rtcOccluded1), so N is always 1.
+void intersectCallback(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || !args->valid[0]) return;
+  const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
+  auto* context = reinterpret_cast<IsoRayContext*>(args->context);
+  RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
+  RTCRay& ray = rh->ray;
+  SurfaceHit hit;
+  const Vec3d org{ray.org_x, ray.org_y, ray.org_z}, dir{ray.dir_x, ray.dir_y, ray.dir_z};
+  if (!surface->intersectBrick(surface->activeBricks()[args->primID], org, dir, ray.tnear,
+                               ray.tfar, hit, context->stats))
+    return;
+  const float t = float(hit.t);
+  if (!(t >= ray.tnear && t <= ray.tfar)) return;
+  ray.tfar = t;
+  rh->hit.Ng_x = hit.normal.x; rh->hit.Ng_y = hit.normal.y; rh->hit.Ng_z = hit.normal.z;
+  rh->hit.u = 0; rh->hit.v = 0;
+  rh->hit.primID = args->primID;
+  rh->hit.geomID = args->geomID;
+  for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
+    rh->hit.instID[l] = args->context->instID[l];
+  // float(t) rounds; the bound must cover that too.
+  context->tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
+}
+
+void occludedCallback(const RTCOccludedFunctionNArguments* args) {
+  if (args->N != 1 || !args->valid[0]) return;
+  const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
+  auto* context = reinterpret_cast<IsoRayContext*>(args->context);
+  RTCRay* ray = reinterpret_cast<RTCRay*>(args->ray);
+  const Vec3d org{ray->org_x, ray->org_y, ray->org_z}, dir{ray->dir_x, ray->dir_y, ray->dir_z};
+  if (surface->occludedBrick(surface->activeBricks()[args->primID], org, dir, ray->tnear,
+                             ray->tfar, context->stats))
+    ray->tfar = -INFINITY;
+}
+
+}  // namespace
+
+RTCGeometry IsoSurface::createGeometry(RTCDevice device) const {
+  RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(geometry, unsigned(m_active.size()));
+  rtcSetGeometryUserData(geometry, const_cast<IsoSurface*>(this));
+  rtcSetGeometryBoundsFunction(geometry, boundsCallback, nullptr);
+  rtcSetGeometryIntersectFunction(geometry, intersectCallback);
+  rtcSetGeometryOccludedFunction(geometry, occludedCallback);
+  rtcCommitGeometry(geometry);
+  return geometry;
+}
+
+}  // namespace iso

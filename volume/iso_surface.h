@@ -1,0 +1,69 @@
+#pragma once
+// One iso-surface of one grid: the active bricks, ray queries with any intersector, and the
+// Embree user geometry whose primitives are those bricks.
+#include <embree3/rtcore.h>
+
+#include <cstdint>
+#include <vector>
+
+#include "volume/bricks.h"
+#include "volume/traversal.h"
+
+namespace iso {
+
+struct SurfaceHit {
+  double t = 0;
+  double tError = 0;   // |t - true t| <= tError (see Root::sError)
+  Vec3f normal;        // world space, unit, pointing to lower values (out of "inside")
+  bool tangent = false;
+};
+
+// Embree carries no per-hit error bound, so rays are traced with this extended context
+// (Embree's documented pattern for passing data to callbacks); the accepted hit writes it.
+struct IsoRayContext {
+  RTCIntersectContext embree;
+  float tError = 0;
+  TraversalStats stats;
+  IsoRayContext() { rtcInitIntersectContext(&embree); }
+};
+
+class IsoSurface {
+ public:
+  IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec);
+
+  double iso() const { return m_iso; }
+  const IntersectorSpec& intersector() const { return m_spec; }
+  const Grid& grid() const { return m_grid; }
+  const std::vector<uint32_t>& activeBricks() const { return m_active; }
+  size_t totalBricks() const { return m_bricks.size(); }
+
+  // Queries on a world-space ray over the whole grid, without Embree (tests, benchmarks,
+  // the reference path). Only active bricks are visited.
+  bool intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit& hit,
+                 TraversalStats& stats) const;
+  bool occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+                TraversalStats& stats) const;
+  // The same on one brick, as Embree calls it.
+  bool intersectBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
+                      double tfar, SurfaceHit& hit, TraversalStats& stats) const;
+  bool occludedBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
+                     double tfar, TraversalStats& stats) const;
+
+  // A user geometry (one primitive per active brick) attached to nothing; the caller owns it.
+  RTCGeometry createGeometry(RTCDevice device) const;
+  // World-space bounds of brick `b`, rounded outwards.
+  void brickBounds(uint32_t b, float lower[3], float upper[3]) const;
+
+ private:
+  template <bool AnyHit>
+  bool query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+             SurfaceHit* hit, TraversalStats& stats) const;
+
+  const Grid& m_grid;
+  const BrickGrid& m_bricks;
+  double m_iso;
+  IntersectorSpec m_spec;
+  std::vector<uint32_t> m_active;
+};
+
+}  // namespace iso

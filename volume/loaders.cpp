@@ -1,0 +1,610 @@
+#include "volume/loaders.h"
+
+#include <zlib.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <regex>
+#include <sstream>
+
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+namespace fs = std::filesystem;
+using Bytes = std::vector<uint8_t>;
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+std::string trim(const std::string& s) {
+  const auto b = s.find_first_not_of(" \t\r\n");
+  if (b == std::string::npos) return "";
+  const auto e = s.find_last_not_of(" \t\r\n");
+  return s.substr(b, e - b + 1);
+}
+
+bool endsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+Bytes readFile(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
+  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path, "", "cannot open file");
+  Bytes data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) throw InputError(path, "", "read error");
+  return data;
+}
+
+// Inflates gzip or zlib streams (windowBits 32+15 detects either), including concatenated
+// gzip members. Truncated or corrupt input is an error, never a short grid.
+Bytes inflateBytes(const Bytes& in, const std::string& file) {
+  Bytes out;
+  size_t consumed = 0;
+  while (consumed < in.size()) {
+    z_stream zs{};
+    if (inflateInit2(&zs, 32 + MAX_WBITS) != Z_OK) throw InputError(file, "", "zlib init failed");
+    zs.next_in = const_cast<Bytef*>(in.data() + consumed);
+    zs.avail_in = uInt(in.size() - consumed);
+    int rc = Z_OK;
+    uint8_t buffer[1 << 16];
+    while (rc != Z_STREAM_END) {
+      zs.next_out = buffer;
+      zs.avail_out = sizeof(buffer);
+      rc = inflate(&zs, Z_NO_FLUSH);
+      if (rc != Z_OK && rc != Z_STREAM_END) {
+        const std::string msg = rc == Z_BUF_ERROR ? "truncated compressed data"
+                                                  : "corrupt compressed data";
+        inflateEnd(&zs);
+        throw InputError(file, "byte " + std::to_string(consumed + zs.total_in), msg);
+      }
+      out.insert(out.end(), buffer, buffer + (sizeof(buffer) - zs.avail_out));
+      if (rc == Z_OK && zs.avail_in == 0 && zs.avail_out != 0) {
+        inflateEnd(&zs);
+        throw InputError(file, "byte " + std::to_string(in.size()), "truncated compressed data");
+      }
+    }
+    consumed += zs.total_in;
+    inflateEnd(&zs);
+    // Trailing zero padding after the last gzip member is tolerated.
+    if (std::all_of(in.begin() + consumed, in.end(), [](uint8_t b) { return b == 0; })) break;
+  }
+  return out;
+}
+
+bool isGzip(const Bytes& b) { return b.size() >= 2 && b[0] == 0x1f && b[1] == 0x8b; }
+
+void checkDims(const Vec3i& d, const std::string& file, const std::string& where) {
+  if (d.x <= 0 || d.y <= 0 || d.z <= 0)
+    throw InputError(file, where, "dimensions must be positive, got " + std::to_string(d.x) +
+                                      "x" + std::to_string(d.y) + "x" + std::to_string(d.z));
+  if (d.x < 2 || d.y < 2 || d.z < 2)
+    throw InputError(file, where, "each dimension needs at least 2 samples to form a cell");
+}
+
+void checkSpacing(const Vec3d& s, const std::string& file, const std::string& where) {
+  if (!(s.x > 0 && s.y > 0 && s.z > 0) || !isFinite(s))
+    throw InputError(file, where, "spacing must be positive and finite");
+}
+
+// Turns raw little/big-endian bytes into a typed grid; the size must match exactly.
+Grid makeGrid(const Vec3i& dims, ScalarType type, const Bytes& bytes, bool bigEndian,
+              const std::string& file) {
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  const size_t expected = count * scalarTypeSize(type);
+  if (bytes.size() != expected)
+    throw InputError(file, "", "data has " + std::to_string(bytes.size()) + " bytes but " +
+                                   std::to_string(dims.x) + "x" + std::to_string(dims.y) + "x" +
+                                   std::to_string(dims.z) + " " + scalarTypeName(type) +
+                                   " needs " + std::to_string(expected));
+  auto convert = [&](auto tag) {
+    using T = decltype(tag);
+    std::vector<T> v(count);
+    std::memcpy(v.data(), bytes.data(), expected);
+    if (bigEndian && sizeof(T) > 1) {
+      for (auto& x : v) {
+        uint8_t* p = reinterpret_cast<uint8_t*>(&x);
+        std::reverse(p, p + sizeof(T));
+      }
+    }
+    return v;
+  };
+  Grid::Storage storage;
+  switch (type) {
+    case ScalarType::UInt8: storage = convert(uint8_t{}); break;
+    case ScalarType::UInt16: storage = convert(uint16_t{}); break;
+    case ScalarType::Int16: storage = convert(int16_t{}); break;
+    case ScalarType::Float32: {
+      auto v = convert(float{});
+      for (size_t i = 0; i < v.size(); ++i) {
+        if (!std::isfinite(v[i])) {
+          const size_t x = i % dims.x, y = (i / dims.x) % dims.y, z = i / (size_t(dims.x) * dims.y);
+          throw InputError(file, "voxel (" + std::to_string(x) + ", " + std::to_string(y) + ", " +
+                                     std::to_string(z) + ")",
+                           std::string(std::isnan(v[i]) ? "NaN" : "infinite") +
+                               " value in the data");
+        }
+      }
+      storage = std::move(v);
+      break;
+    }
+  }
+  return Grid(dims, std::move(storage));
+}
+
+// Parses whitespace-separated numbers (ASCII encodings) into the bytes of the scalar type.
+Bytes asciiToBytes(const std::string& text, ScalarType type, size_t count, const std::string& file) {
+  Bytes out(count * scalarTypeSize(type));
+  std::istringstream in(text);
+  for (size_t i = 0; i < count; ++i) {
+    double v;
+    if (!(in >> v))
+      throw InputError(file, "", "ASCII data ends after " + std::to_string(i) + " of " +
+                                     std::to_string(count) + " values");
+    switch (type) {
+      case ScalarType::UInt8: out[i] = uint8_t(v); break;
+      case ScalarType::UInt16: { uint16_t x = uint16_t(v); std::memcpy(&out[2 * i], &x, 2); break; }
+      case ScalarType::Int16: { int16_t x = int16_t(v); std::memcpy(&out[2 * i], &x, 2); break; }
+      case ScalarType::Float32: { float x = float(v); std::memcpy(&out[4 * i], &x, 4); break; }
+    }
+  }
+  return out;
+}
+
+std::vector<double> parseNumbers(const std::string& s, const std::string& file,
+                                 const std::string& where, size_t n) {
+  std::string clean = s;
+  for (char& c : clean) if (c == '(' || c == ')' || c == ',') c = ' ';
+  std::istringstream in(clean);
+  std::vector<double> v;
+  std::string tok;
+  while (in >> tok) {
+    char* end = nullptr;
+    const double d = std::strtod(tok.c_str(), &end);
+    if (end == tok.c_str() || *end != 0)
+      throw InputError(file, where, "'" + tok + "' is not a number");
+    v.push_back(d);
+  }
+  if (n && v.size() != n)
+    throw InputError(file, where, "expected " + std::to_string(n) + " numbers, got " +
+                                      std::to_string(v.size()));
+  return v;
+}
+
+Vec3i toDims(const std::vector<double>& v, const std::string& file, const std::string& where) {
+  for (double d : v)
+    if (d != std::floor(d) || d > 1e9)
+      throw InputError(file, where, "dimensions must be whole numbers");
+  Vec3i dims{int(v[0]), int(v[1]), int(v[2])};
+  checkDims(dims, file, where);
+  return dims;
+}
+
+// ---------------------------------------------------------------------------------------
+// NRRD (http://teem.sourceforge.net/nrrd/format.html)
+
+bool nrrdType(const std::string& t, ScalarType& type) {
+  static const std::map<std::string, ScalarType> names = {
+      {"uchar", ScalarType::UInt8},          {"unsigned char", ScalarType::UInt8},
+      {"uint8", ScalarType::UInt8},          {"uint8_t", ScalarType::UInt8},
+      {"ushort", ScalarType::UInt16},        {"unsigned short", ScalarType::UInt16},
+      {"unsigned short int", ScalarType::UInt16}, {"uint16", ScalarType::UInt16},
+      {"uint16_t", ScalarType::UInt16},      {"short", ScalarType::Int16},
+      {"short int", ScalarType::Int16},      {"signed short", ScalarType::Int16},
+      {"signed short int", ScalarType::Int16}, {"int16", ScalarType::Int16},
+      {"int16_t", ScalarType::Int16},        {"float", ScalarType::Float32}};
+  auto it = names.find(t);
+  if (it == names.end()) return false;
+  type = it->second;
+  return true;
+}
+
+// Expands the `%d` form of `data file:` safely: exactly one integer conversion, no other '%'.
+std::string formatSliceName(const std::string& pattern, long index, const std::string& file,
+                            const std::string& where) {
+  static const std::regex conv("%(0?[0-9]*)d");
+  std::smatch m;
+  if (!std::regex_search(pattern, m, conv) ||
+      std::count(pattern.begin(), pattern.end(), '%') != 1)
+    throw InputError(file, where, "data file pattern '" + pattern + "' needs exactly one %d");
+  std::string number = std::to_string(index);
+  const std::string width = m[1].str();
+  if (!width.empty()) {
+    const size_t w = size_t(std::stoul(width));
+    const char pad = width[0] == '0' ? '0' : ' ';
+    if (number.size() < w) number = std::string(w - number.size(), pad) + number;
+  }
+  return m.prefix().str() + number + m.suffix().str();
+}
+
+Grid loadNrrd(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  // The header ends at the first empty line (attached data follows) or at the end of file.
+  size_t pos = 0, lineNo = 0, dataStart = bytes.size();
+  bool attached = false;
+  std::vector<std::pair<size_t, std::string>> lines;
+  while (pos < bytes.size()) {
+    size_t nl = pos;
+    while (nl < bytes.size() && bytes[nl] != '\n') ++nl;
+    std::string line(bytes.begin() + pos, bytes.begin() + nl);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    ++lineNo;
+    pos = nl + 1;
+    if (line.empty()) { attached = true; dataStart = std::min(pos, bytes.size()); break; }
+    lines.emplace_back(lineNo, line);
+  }
+  if (lines.empty() || lines[0].second.rfind("NRRD000", 0) != 0)
+    throw InputError(path, "line 1", "not a NRRD file (missing 'NRRD000x' magic)");
+
+  std::map<std::string, std::pair<size_t, std::string>> fields;
+  std::vector<std::string> listFiles;
+  bool inList = false;
+  for (size_t i = 1; i < lines.size(); ++i) {
+    const auto& [no, line] = lines[i];
+    if (inList) { listFiles.push_back(trim(line)); continue; }
+    if (line[0] == '#') continue;
+    if (line.find(":=") != std::string::npos) continue;  // key/value pairs carry no layout
+    const auto colon = line.find(':');
+    if (colon == std::string::npos)
+      throw InputError(path, "line " + std::to_string(no), "expected 'field: value'");
+    std::string key = lower(trim(line.substr(0, colon)));
+    const std::string value = trim(line.substr(colon + 1));
+    if (key == "datafile") key = "data file";  // spelling seen in the wild (Voreen)
+    fields[key] = {no, value};
+    if (key == "data file" && lower(value).rfind("list", 0) == 0) inList = true;
+  }
+  auto where = [&](const std::string& key) { return "line " + std::to_string(fields[key].first); };
+  auto require = [&](const std::string& key) -> std::string {
+    if (!fields.count(key)) throw InputError(path, "header", "missing required field '" + key + "'");
+    return fields[key].second;
+  };
+
+  const std::string dimension = require("dimension");
+  if (dimension != "3")
+    throw InputError(path, where("dimension"), "only 3-dimensional NRRD volumes are supported");
+  ScalarType type;
+  const std::string typeName = lower(require("type"));
+  if (!nrrdType(typeName, type))
+    throw InputError(path, where("type"), "unsupported type '" + typeName +
+                                              "' (supported: uchar, ushort, short, float)");
+  const Vec3i dims = toDims(parseNumbers(require("sizes"), path, where("sizes"), 3), path,
+                            where("sizes"));
+  const std::string encoding = lower(require("encoding"));
+  enum class Enc { Raw, Gzip, Ascii } enc;
+  if (encoding == "raw") enc = Enc::Raw;
+  else if (encoding == "gzip" || encoding == "gz") enc = Enc::Gzip;
+  else if (encoding == "ascii" || encoding == "text" || encoding == "txt") enc = Enc::Ascii;
+  else throw InputError(path, where("encoding"), "unsupported encoding '" + encoding +
+                                                     "' (supported: raw, gzip, ascii)");
+  bool bigEndian = false;
+  if (fields.count("endian")) {
+    const std::string e = lower(fields["endian"].second);
+    if (e != "little" && e != "big")
+      throw InputError(path, where("endian"), "endian must be 'little' or 'big'");
+    bigEndian = e == "big";
+  }
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  if (fields.count("spacings")) {
+    auto s = parseNumbers(fields["spacings"].second, path, where("spacings"), 3);
+    spacing = {s[0], s[1], s[2]};
+  } else if (fields.count("space directions")) {
+    auto s = parseNumbers(fields["space directions"].second, path, where("space directions"), 9);
+    spacing = {std::hypot(s[0], s[1], s[2]), std::hypot(s[3], s[4], s[5]),
+               std::hypot(s[6], s[7], s[8])};
+  }
+  checkSpacing(spacing, path, fields.count("spacings") ? where("spacings") : "header");
+  if (fields.count("space origin")) {
+    auto o = parseNumbers(fields["space origin"].second, path, where("space origin"), 3);
+    origin = {o[0], o[1], o[2]};
+  }
+  long lineSkip = 0, byteSkip = 0;
+  if (fields.count("line skip")) lineSkip = long(parseNumbers(fields["line skip"].second, path, where("line skip"), 1)[0]);
+  if (fields.count("byte skip")) byteSkip = long(parseNumbers(fields["byte skip"].second, path, where("byte skip"), 1)[0]);
+  if (byteSkip == -1 && enc != Enc::Raw)
+    throw InputError(path, where("byte skip"), "'byte skip: -1' is only valid with raw encoding");
+
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  const size_t totalBytes = count * scalarTypeSize(type);
+
+  // Decodes one data chunk (the attached data, or one data file) after its skips.
+  auto decode = [&](Bytes chunk, const std::string& chunkName, size_t expectBytes) -> Bytes {
+    size_t p = 0;
+    for (long l = 0; l < lineSkip; ++l) {
+      while (p < chunk.size() && chunk[p] != '\n') ++p;
+      if (p < chunk.size()) ++p;
+    }
+    chunk.erase(chunk.begin(), chunk.begin() + std::min(p, chunk.size()));
+    if (enc == Enc::Gzip) chunk = inflateBytes(chunk, chunkName);
+    if (byteSkip == -1) {
+      if (chunk.size() < expectBytes)
+        throw InputError(chunkName, "", "data has " + std::to_string(chunk.size()) +
+                                            " bytes, header needs " + std::to_string(expectBytes));
+      chunk.erase(chunk.begin(), chunk.end() - long(expectBytes));
+    } else if (byteSkip > 0) {
+      if (size_t(byteSkip) > chunk.size())
+        throw InputError(chunkName, "", "byte skip runs past the end of the data");
+      chunk.erase(chunk.begin(), chunk.begin() + byteSkip);
+    }
+    if (enc == Enc::Ascii) {
+      const size_t n = expectBytes / scalarTypeSize(type);
+      return asciiToBytes(std::string(chunk.begin(), chunk.end()), type, n, chunkName);
+    }
+    if (chunk.size() != expectBytes)
+      throw InputError(chunkName, "", "data has " + std::to_string(chunk.size()) +
+                                          " bytes but the header (" + path + ") needs " +
+                                          std::to_string(expectBytes));
+    return chunk;
+  };
+
+  Bytes data;
+  const fs::path dir = fs::path(path).parent_path();
+  if (!fields.count("data file")) {
+    if (!attached && dataStart >= bytes.size())
+      throw InputError(path, "header", "no attached data and no 'data file' field");
+    data = decode(Bytes(bytes.begin() + long(dataStart), bytes.end()), path, totalBytes);
+  } else {
+    const std::string value = fields["data file"].second;
+    const std::string w = where("data file");
+    std::vector<std::string> files;
+    std::istringstream in(value);
+    std::vector<std::string> tokens;
+    for (std::string t; in >> t;) tokens.push_back(t);
+    if (!tokens.empty() && lower(tokens[0]) == "list") {
+      files = listFiles;
+      if (files.empty()) throw InputError(path, w, "'data file: LIST' is followed by no file names");
+    } else if (tokens.size() >= 4 && value.find('%') != std::string::npos) {
+      const long first = std::stol(tokens[1]), last = std::stol(tokens[2]), step = std::stol(tokens[3]);
+      if (step == 0 || (last - first) / step < 0)
+        throw InputError(path, w, "empty or endless file range");
+      for (long i = first; step > 0 ? i <= last : i >= last; i += step)
+        files.push_back(formatSliceName(tokens[0], i, path, w));
+    } else {
+      files.push_back(value);
+    }
+    if (totalBytes % files.size() != 0)
+      throw InputError(path, w, std::to_string(files.size()) + " data files do not divide the " +
+                                    std::to_string(totalBytes) + " bytes of the volume evenly");
+    const size_t per = totalBytes / files.size();
+    data.reserve(totalBytes);
+    for (const auto& f : files) {
+      const std::string full = (dir / f).lexically_normal().string();
+      Bytes part = decode(readFile(full), full, per);
+      data.insert(data.end(), part.begin(), part.end());
+    }
+  }
+  Grid g = makeGrid(dims, type, data, bigEndian, path);
+  g.setOrigin(origin);
+  g.setSpacing(spacing);
+  return g;
+}
+
+// ---------------------------------------------------------------------------------------
+// MetaImage (https://itk.org/Wiki/ITK/MetaIO/Documentation)
+
+Grid loadMetaImage(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  std::map<std::string, std::pair<size_t, std::string>> fields;
+  size_t pos = 0, lineNo = 0;
+  while (pos < bytes.size()) {
+    size_t nl = pos;
+    while (nl < bytes.size() && bytes[nl] != '\n') ++nl;
+    const std::string line = trim(std::string(bytes.begin() + pos, bytes.begin() + nl));
+    pos = nl + 1;
+    ++lineNo;
+    if (line.empty()) continue;
+    const auto eq = line.find('=');
+    if (eq == std::string::npos)
+      throw InputError(path, "line " + std::to_string(lineNo), "expected 'Key = Value'");
+    const std::string key = trim(line.substr(0, eq));
+    fields[key] = {lineNo, trim(line.substr(eq + 1))};
+    if (key == "ElementDataFile") break;  // by the format, the last header field
+  }
+  auto where = [&](const std::string& key) { return "line " + std::to_string(fields[key].first); };
+  auto require = [&](const std::string& key) -> std::string {
+    if (!fields.count(key)) throw InputError(path, "header", "missing required field '" + key + "'");
+    return fields[key].second;
+  };
+  if (require("NDims") != "3")
+    throw InputError(path, where("NDims"), "only 3-dimensional images are supported");
+  const Vec3i dims = toDims(parseNumbers(require("DimSize"), path, where("DimSize"), 3), path,
+                            where("DimSize"));
+  const std::string typeName = require("ElementType");
+  ScalarType type;
+  if (typeName == "MET_UCHAR") type = ScalarType::UInt8;
+  else if (typeName == "MET_USHORT") type = ScalarType::UInt16;
+  else if (typeName == "MET_SHORT") type = ScalarType::Int16;
+  else if (typeName == "MET_FLOAT") type = ScalarType::Float32;
+  else throw InputError(path, where("ElementType"), "unsupported element type '" + typeName +
+                                                        "' (supported: MET_UCHAR, MET_USHORT, MET_SHORT, MET_FLOAT)");
+  if (fields.count("ElementNumberOfChannels") && fields["ElementNumberOfChannels"].second != "1")
+    throw InputError(path, where("ElementNumberOfChannels"), "only single-channel images are supported");
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  for (const char* key : {"ElementSpacing", "ElementSize"}) {
+    if (fields.count(key)) {
+      auto s = parseNumbers(fields[key].second, path, where(key), 3);
+      spacing = {s[0], s[1], s[2]};
+      checkSpacing(spacing, path, where(key));
+      break;
+    }
+  }
+  for (const char* key : {"Offset", "Origin", "Position"}) {
+    if (fields.count(key)) {
+      auto o = parseNumbers(fields[key].second, path, where(key), 3);
+      origin = {o[0], o[1], o[2]};
+      break;
+    }
+  }
+  bool bigEndian = false;
+  for (const char* key : {"ElementByteOrderMSB", "BinaryDataByteOrderMSB"})
+    if (fields.count(key)) bigEndian = lower(fields[key].second) == "true";
+  const bool compressed = fields.count("CompressedData") && lower(fields["CompressedData"].second) == "true";
+  const std::string dataFile = require("ElementDataFile");
+  Bytes data;
+  if (dataFile == "LOCAL") {
+    data.assign(bytes.begin() + long(std::min(pos, bytes.size())), bytes.end());
+  } else if (dataFile.rfind("LIST", 0) == 0 || dataFile.find('%') != std::string::npos) {
+    throw InputError(path, where("ElementDataFile"), "multi-file MetaImage data is not supported");
+  } else {
+    const std::string full = (fs::path(path).parent_path() / dataFile).lexically_normal().string();
+    data = readFile(full);
+  }
+  if (compressed) data = inflateBytes(data, path);
+  if (fields.count("HeaderSize") && dataFile != "LOCAL") {
+    const long skip = long(parseNumbers(fields["HeaderSize"].second, path, where("HeaderSize"), 1)[0]);
+    const size_t need = size_t(dims.x) * dims.y * dims.z * scalarTypeSize(type);
+    if (skip == -1 && data.size() >= need) data.erase(data.begin(), data.end() - long(need));
+    else if (skip > 0 && size_t(skip) <= data.size()) data.erase(data.begin(), data.begin() + skip);
+  }
+  Grid g = makeGrid(dims, type, data, bigEndian, path);
+  g.setOrigin(origin);
+  g.setSpacing(spacing);
+  return g;
+}
+
+// ---------------------------------------------------------------------------------------
+// Legacy VTK STRUCTURED_POINTS (https://vtk.org/wp-content/uploads/2015/04/file-formats.pdf).
+// Binary data is big-endian by the VTK convention.
+
+Grid loadVtk(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  size_t pos = 0, lineNo = 0;
+  auto nextLine = [&]() -> std::string {
+    if (pos >= bytes.size())
+      throw InputError(path, "line " + std::to_string(lineNo + 1), "unexpected end of file in header");
+    size_t nl = pos;
+    while (nl < bytes.size() && bytes[nl] != '\n') ++nl;
+    std::string line(bytes.begin() + pos, bytes.begin() + nl);
+    pos = nl + 1;
+    ++lineNo;
+    return trim(line);
+  };
+  auto here = [&]() { return "line " + std::to_string(lineNo); };
+  if (nextLine().rfind("# vtk DataFile", 0) != 0)
+    throw InputError(path, "line 1", "not a legacy VTK file (missing '# vtk DataFile' line)");
+  nextLine();  // title
+  const std::string format = nextLine();
+  const bool binary = format == "BINARY";
+  if (!binary && format != "ASCII") throw InputError(path, here(), "expected ASCII or BINARY");
+  std::string line;
+  do { line = nextLine(); } while (line.empty());
+  if (line != "DATASET STRUCTURED_POINTS")
+    throw InputError(path, here(), "only 'DATASET STRUCTURED_POINTS' is supported, found '" + line + "'");
+  Vec3i dims{0, 0, 0};
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  bool haveDims = false;
+  ScalarType type = ScalarType::UInt8;
+  for (;;) {
+    line = nextLine();
+    if (line.empty()) continue;
+    std::istringstream in(line);
+    std::string key;
+    in >> key;
+    const std::string rest = trim(line.substr(key.size()));
+    if (key == "DIMENSIONS") {
+      dims = toDims(parseNumbers(rest, path, here(), 3), path, here());
+      haveDims = true;
+    } else if (key == "SPACING" || key == "ASPECT_RATIO") {
+      auto s = parseNumbers(rest, path, here(), 3);
+      spacing = {s[0], s[1], s[2]};
+      checkSpacing(spacing, path, here());
+    } else if (key == "ORIGIN") {
+      auto o = parseNumbers(rest, path, here(), 3);
+      origin = {o[0], o[1], o[2]};
+    } else if (key == "POINT_DATA") {
+      if (!haveDims) throw InputError(path, here(), "POINT_DATA before DIMENSIONS");
+      const double n = parseNumbers(rest, path, here(), 1)[0];
+      if (n != double(dims.x) * dims.y * dims.z)
+        throw InputError(path, here(), "POINT_DATA count disagrees with DIMENSIONS");
+    } else if (key == "SCALARS") {
+      std::string name, t;
+      int components = 1;
+      in >> name >> t;
+      if (in >> components && components != 1)
+        throw InputError(path, here(), "only single-component scalars are supported");
+      if (t == "unsigned_char") type = ScalarType::UInt8;
+      else if (t == "unsigned_short") type = ScalarType::UInt16;
+      else if (t == "short") type = ScalarType::Int16;
+      else if (t == "float") type = ScalarType::Float32;
+      else throw InputError(path, here(), "unsupported scalar type '" + t +
+                                              "' (supported: unsigned_char, unsigned_short, short, float)");
+    } else if (key == "LOOKUP_TABLE") {
+      break;  // the data follows this line
+    } else if (key == "CELL_DATA" || key == "VECTORS" || key == "FIELD") {
+      throw InputError(path, here(), "'" + key + "' is not supported; expected SCALARS point data");
+    } else {
+      throw InputError(path, here(), "unexpected keyword '" + key + "'");
+    }
+  }
+  if (!haveDims) throw InputError(path, here(), "missing DIMENSIONS");
+  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  Bytes data;
+  if (binary) {
+    const size_t need = count * scalarTypeSize(type);
+    if (bytes.size() - std::min(pos, bytes.size()) < need)
+      throw InputError(path, "", "binary data has " + std::to_string(bytes.size() - std::min(pos, bytes.size())) +
+                                     " bytes but DIMENSIONS need " + std::to_string(need));
+    data.assign(bytes.begin() + long(pos), bytes.begin() + long(pos + need));
+  } else {
+    data = asciiToBytes(std::string(bytes.begin() + long(std::min(pos, bytes.size())), bytes.end()),
+                        type, count, path);
+  }
+  // ASCII values were converted to native order already.
+  Grid g = makeGrid(dims, type, data, binary, path);
+  g.setOrigin(origin);
+  g.setSpacing(spacing);
+  return g;
+}
+
+Grid loadRaw(const std::string& path, const RawLayout& layout) {
+  Vec3i dims;
+  ScalarType type;
+  const bool named = parseSciVisName(path, dims, type);
+  if (layout.dims) dims = *layout.dims;
+  if (layout.type) type = *layout.type;
+  if (!layout.dims && !named)
+    throw InputError(path, "", "raw volume needs \"dims\" and \"type\" (or an Open SciVis name like name_64x64x64_uint8.raw)");
+  if (!layout.type && !named)
+    throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
+  checkDims(dims, path, "");
+  Bytes data = readFile(path);
+  if (isGzip(data)) data = inflateBytes(data, path);
+  return makeGrid(dims, type, data, layout.bigEndian, path);
+}
+
+}  // namespace
+
+bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
+  static const std::regex pattern(R"(_(\d+)x(\d+)x(\d+)_([a-z0-9]+)\.raw(\.gz)?$)");
+  std::smatch m;
+  const std::string name = fs::path(path).filename().string();
+  if (!std::regex_search(name, m, pattern)) return false;
+  if (!parseScalarType(m[4].str(), type)) return false;
+  try {
+    dims = {std::stoi(m[1].str()), std::stoi(m[2].str()), std::stoi(m[3].str())};
+  } catch (const std::exception&) {
+    return false;
+  }
+  return true;
+}
+
+Grid loadVolumeFile(const std::string& path, const RawLayout& layout) {
+  const std::string name = lower(fs::path(path).filename().string());
+  if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return loadNrrd(path);
+  if (endsWith(name, ".mhd") || endsWith(name, ".mha")) return loadMetaImage(path);
+  if (endsWith(name, ".vtk")) return loadVtk(path);
+  if (endsWith(name, ".vdb"))
+    throw InputError(path, "", "OpenVDB volumes are not supported yet");
+  return loadRaw(path, layout);
+}
+
+}  // namespace iso

@@ -1,0 +1,161 @@
+#pragma once
+// Ray traversal of a box of cells (one brick, or the whole grid): slab clipping, then a
+// 3D-DDA (Amanatides & Woo 1987) that skips cells whose corners all lie on one side.
+//
+// Why no cracks: every segment boundary is a plane crossing t = planeT(axis, k), computed by
+// one function, so the exit t of a cell (or brick) is the entry t of the next bit for bit.
+// At that t the coordinate on the crossed axis is set exactly to the face (0 or 1), the others
+// are computed from t the same way on both sides, and trilinear() at local 0 and 1 reduces
+// exactly to the shared face's bilinear value. So f1 of one cell is f0 of the next, each
+// crossing is counted in exactly one cell, and the sign sequence along a ray telescopes.
+#include <cmath>
+#include <limits>
+
+#include "volume/grid.h"
+#include "volume/intersectors.h"
+
+namespace iso {
+
+// A ray in grid coordinates (sample (i, j, k) at point (i, j, k)); t is the world ray's t.
+template <typename Real>
+struct GridRay {
+  Vec3<Real> org, dir, invDir;
+  GridRay() = default;
+  GridRay(const Vec3<Real>& o, const Vec3<Real>& d) : org(o), dir(d) {
+    for (int a = 0; a < 3; ++a) invDir[a] = Real(1) / d[a];
+  }
+  Real planeT(int axis, int k) const { return (Real(k) - org[axis]) * invDir[axis]; }
+  bool valid() const { return isFinite(org) && isFinite(dir) && !(dir == Vec3<Real>{0, 0, 0}); }
+};
+
+// Maps a world-space ray to grid coordinates. Done in double so that a grid placed far from
+// the origin (1e5) keeps its local precision once the origin is subtracted.
+template <typename Real>
+inline GridRay<Real> toGridRay(const Grid& grid, const Vec3d& org, const Vec3d& dir) {
+  const Vec3d o = (org - grid.origin()) / grid.spacing();
+  const Vec3d d = dir / grid.spacing();
+  return GridRay<Real>(Vec3<Real>(o), Vec3<Real>(d));
+}
+
+struct TraversalStats {
+  uint64_t cellsVisited = 0;  // cells the DDA stepped through
+  uint64_t cellsSolved = 0;   // cells whose corners straddle the iso value
+  uint64_t rootsRefined = 0;  // crossings located (closest-hit queries only)
+};
+
+template <typename Real>
+struct CellHit {
+  Real t = 0;
+  Real tError = 0;
+  Vec3i cell;
+  Vec3<Real> local;   // cell-local hit coordinates
+  bool tangent = false;
+};
+
+template <typename Real>
+inline void loadCell(const Grid& grid, const Vec3i& c, Real iso, Real g[8]) {
+  float v[8];
+  grid.cellCorners(c.x, c.y, c.z, v);
+  for (int i = 0; i < 8; ++i) g[i] = Real(v[i]) - iso;
+}
+
+// First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
+// [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
+template <bool AnyHit, typename Real, typename Intersector>
+bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
+                   Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
+                   TraversalStats& stats) {
+  if (!ray.valid() || !(tnear <= tfar)) return false;
+  Real t0 = tnear, t1 = tfar;
+  int entryAxis = -1;
+  for (int a = 0; a < 3; ++a) {
+    if (ray.dir[a] == Real(0)) {
+      if (ray.org[a] < Real(lo[a]) || ray.org[a] > Real(hi[a])) return false;
+      continue;
+    }
+    const bool pos = ray.dir[a] > Real(0);
+    const Real tl = ray.planeT(a, pos ? lo[a] : hi[a]);
+    const Real th = ray.planeT(a, pos ? hi[a] : lo[a]);
+    if (tl > t0) { t0 = tl; entryAxis = a; }
+    t1 = std::min(t1, th);
+  }
+  if (!(t0 <= t1)) return false;
+
+  Vec3i cell, step;
+  Vec3<Real> tNext;
+  const Real inf = std::numeric_limits<Real>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    const bool pos = ray.dir[a] > Real(0);
+    if (a == entryAxis) {
+      cell[a] = pos ? lo[a] : hi[a] - 1;
+    } else {
+      const Real p = ray.org[a] + t0 * ray.dir[a];
+      cell[a] = std::clamp(int(std::floor(p)), lo[a], hi[a] - 1);
+    }
+    step[a] = ray.dir[a] == Real(0) ? 0 : (pos ? 1 : -1);
+    tNext[a] = step[a] == 0 ? inf : ray.planeT(a, cell[a] + (pos ? 1 : 0));
+  }
+
+  // Local coordinate on `axis` at t, with the crossed face pinned exactly.
+  auto localAt = [&](Real t, int faceAxis, Real faceValue) {
+    Vec3<Real> p;
+    for (int a = 0; a < 3; ++a)
+      p[a] = a == faceAxis ? faceValue
+                           : std::clamp(ray.org[a] + t * ray.dir[a] - Real(cell[a]), Real(0), Real(1));
+    return p;
+  };
+  auto faceValue = [&](int axis, bool entering) {
+    const bool pos = ray.dir[axis] > Real(0);
+    return Real(pos == entering ? 0 : 1);
+  };
+
+  Real ta = t0;
+  int enterAxis = entryAxis;
+  for (;;) {
+    ++stats.cellsVisited;
+    int m = 0;
+    if (tNext[1] < tNext[m]) m = 1;
+    if (tNext[2] < tNext[m]) m = 2;
+    // Either the cell is left through a face (pinned) or the ray ends inside it at tfar.
+    const bool throughFace = tNext[m] <= t1;
+    const Real tb = std::max(ta, throughFace ? tNext[m] : t1);
+    const int leaveAxis = throughFace ? m : -1;
+
+    CellSegment<Real> seg;
+    loadCell(grid, cell, iso, seg.g);
+    bool anyIn = false, anyOut = false;
+    for (int i = 0; i < 8; ++i) (isInside(seg.g[i]) ? anyIn : anyOut) = true;
+    if (anyIn && anyOut) {
+      ++stats.cellsSolved;
+      seg.a = localAt(ta, enterAxis, enterAxis >= 0 ? faceValue(enterAxis, true) : Real(0));
+      seg.b = localAt(tb, leaveAxis, leaveAxis >= 0 ? faceValue(leaveAxis, false) : Real(0));
+      seg.f0 = trilinear(seg.g, seg.a);
+      seg.f1 = trilinear(seg.g, seg.b);
+      if constexpr (AnyHit) {
+        if (solver.any(seg)) return true;
+      } else {
+        Root<Real> root;
+        if (solver.first(seg, root)) {
+          ++stats.rootsRefined;
+          const Real len = tb - ta;
+          hit.t = ta + root.s * len;
+          // The bracket in s, plus the rounding of t itself.
+          hit.tError = root.sError * len +
+                       Real(2) * std::numeric_limits<Real>::epsilon() * (std::fabs(hit.t) + len);
+          hit.cell = cell;
+          hit.local = seg.a + (seg.b - seg.a) * root.s;
+          hit.tangent = root.tangent;
+          return true;
+        }
+      }
+    }
+    if (!throughFace) return false;
+    cell[m] += step[m];
+    if (cell[m] < lo[m] || cell[m] >= hi[m]) return false;
+    ta = tb;
+    enterAxis = m;
+    tNext[m] = ray.planeT(m, cell[m] + (step[m] > 0 ? 1 : 0));
+  }
+}
+
+}  // namespace iso
