@@ -22,7 +22,7 @@ bool parseIntersector(const std::string& text, IntersectorSpec& spec, std::strin
   if (name == "linear") s.kind = IntersectorKind::Linear;
   else if (name == "neubauer") { s.kind = IntersectorKind::Neubauer; s.iterations = 3; }
   else if (name == "schwarze") s.kind = IntersectorKind::Schwarze;
-  else if (name == "isolation") { s.kind = IntersectorKind::Isolation; s.iterations = 4; }
+  else if (name == "isolation") { s.kind = IntersectorKind::Isolation; s.iterations = 8; }
   else if (name == "reference") s.kind = IntersectorKind::Reference;
   else {
     error = "unknown intersector '" + text + "' (known: " + intersectorList() + ")";

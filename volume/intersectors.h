@@ -24,7 +24,7 @@ enum class IntersectorKind { Linear, Neubauer, Schwarze, Isolation, Reference };
 
 struct IntersectorSpec {
   IntersectorKind kind = IntersectorKind::Isolation;
-  int iterations = 4;  // refinement steps for neubauer and isolation
+  int iterations = 8;  // refinement steps for neubauer (default 3) and isolation (default 8)
 };
 
 // "linear", "neubauer", "schwarze", "isolation", "reference", optionally ":N" for the
@@ -100,6 +100,25 @@ inline Root<Real> refineBracket(Real lo, Real hi, Real flo, Real fhi, int iterat
   return {s, std::max(s - lo, hi - s), false};
 }
 
+// How far rounding can move a root: the cubic is evaluated with an absolute error of a few
+// ulps of the corner magnitudes, and near a simple root that moves s by error / |f'(s)|
+// (first order). A tangent-like root (f' ~ 0) honestly gets a large bound.
+template <typename Real>
+inline Real evaluationBound(const CellSegment<Real>& seg, const Cubic<Real>& cubic, Real s) {
+  Real scale = 0;
+  for (Real g : seg.g) scale += std::fabs(g);
+  const Real slope = std::fabs((Real(3) * cubic.c[3] * s + Real(2) * cubic.c[2]) * s + cubic.c[1]);
+  const Real bound = Real(32) * std::numeric_limits<Real>::epsilon() * scale / slope;
+  return std::isfinite(bound) ? std::min(bound, Real(1)) : Real(1);
+}
+
+template <typename Real>
+inline Root<Real> withEvaluationBound(Root<Real> root, const CellSegment<Real>& seg,
+                                      const Cubic<Real>& cubic) {
+  root.sError += evaluationBound(seg, cubic, root.s);
+  return root;
+}
+
 }  // namespace detail
 
 // Linear: the field at entry and exit, interpolated linearly. Misses a ray that crosses twice.
@@ -130,7 +149,7 @@ struct NeubauerIntersector {
     }
     float s = lo + (hi - lo) * (flo / (flo - fhi));
     if (!(s >= lo && s <= hi)) s = 0.5f * (lo + hi);
-    root = {s, std::max(s - lo, hi - s), false};
+    root = detail::withEvaluationBound<float>({s, std::max(s - lo, hi - s), false}, seg, cubic);
     return true;
   }
   bool any(const CellSegment<float>& seg) const { return isInside(seg.f0) != isInside(seg.f1); }
@@ -192,14 +211,15 @@ struct SchwarzeIntersector {
 // ends differ in class, refine there (Illinois regula falsi). Exact in which crossing it
 // finds, approximate only in where, and that error is bounded by the final bracket.
 struct IsolationIntersector {
-  int iterations = 4;
+  int iterations = 8;
   bool first(const CellSegment<float>& seg, Root<float>& root) const {
     const Cubic<float> cubic = cellCubic(seg);
     float s[4], f[4];
     const int n = detail::isolate(seg, cubic, s, f);
     for (int i = 0; i + 1 < n; ++i) {
       if (isInside(f[i]) != isInside(f[i + 1])) {
-        root = detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], iterations, cubic);
+        root = detail::withEvaluationBound(
+            detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], iterations, cubic), seg, cubic);
         return true;
       }
     }
@@ -230,7 +250,8 @@ struct ReferenceIntersector {
     const double touch = 16 * std::numeric_limits<double>::epsilon() * scale;
     for (int i = 0; i + 1 < n; ++i) {
       if (isInside(f[i]) != isInside(f[i + 1])) {
-        root = detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], 200, cubic);
+        root = detail::withEvaluationBound(
+            detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], 200, cubic), seg, cubic);
         return true;
       }
       if (i + 1 < n - 1 && std::fabs(f[i + 1]) <= touch) {

@@ -38,7 +38,7 @@ class IsoSurface {
   size_t totalBricks() const { return m_bricks.size(); }
 
   // Queries on a world-space ray over the whole grid, without Embree (tests, benchmarks,
-  // the reference path). Only active bricks are visited.
+  // the reference path).
   bool intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit& hit,
                  TraversalStats& stats) const;
   bool occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,

@@ -1,0 +1,45 @@
+// The visualisation integrators: shading normals, and a headlight for a first look.
+#include <cmath>
+#include <stdexcept>
+
+#include "integrators/integrator.h"
+
+namespace iso {
+namespace {
+
+// The world-space shading normal, components in [-1, 1], exactly 0 where nothing is hit.
+class NormalsIntegrator final : public Integrator {
+ public:
+  using Integrator::Integrator;
+  Vec3f Li(const Ray& ray, Sampler&, RayCounters& counters) const override {
+    ++counters.camera;
+    Hit hit;
+    if (!m_world.intersect(ray, hit, counters.traversal)) return {0, 0, 0};
+    return hit.normal;
+  }
+  bool signedOutput() const override { return true; }
+};
+
+// A light at the eye: Lambert with the cosine to the viewer, both sides of a surface lit,
+// each iso-surface in its own colour.
+class EyelightIntegrator final : public Integrator {
+ public:
+  using Integrator::Integrator;
+  Vec3f Li(const Ray& ray, Sampler&, RayCounters& counters) const override {
+    ++counters.camera;
+    Hit hit;
+    if (!m_world.intersect(ray, hit, counters.traversal)) return {0, 0, 0};
+    const float cosine = std::fabs(dot(hit.normal, ray.dir));
+    return m_world.surfaces()[hit.surface].color * (0.1f + 0.9f * cosine);
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Integrator> makeIntegrator(const std::string& name, const World& world) {
+  if (name == "normals") return std::make_unique<NormalsIntegrator>(world);
+  if (name == "eyelight") return std::make_unique<EyelightIntegrator>(world);
+  throw std::logic_error("makeIntegrator: unknown integrator '" + name + "'");
+}
+
+}  // namespace iso

@@ -1,0 +1,157 @@
+#include "renderer/cli.h"
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <regex>
+
+#include "renderer/render.h"
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+struct RenderFlags {
+  std::string scene, output, integrator, intersector, resolution;
+  int spp = 0, threads = -1;
+  long long seed = -1;
+  bool quiet = false;
+};
+
+// Flags override the scene file; each is checked here so that a bad one is an InputError.
+void applyFlags(const RenderFlags& f, SceneDesc& scene) {
+  RenderSettings& s = scene.settings;
+  if (!f.integrator.empty()) {
+    if (!isKnownIntegrator(f.integrator))
+      throw InputError("--integrator", "", "unknown integrator '" + f.integrator + "' (known: " +
+                                               integratorList() + ")");
+    s.integrator = f.integrator;
+  }
+  if (!f.intersector.empty()) {
+    std::string error;
+    if (!parseIntersector(f.intersector, s.intersector, error))
+      throw InputError("--intersector", "", error);
+  }
+  if (!f.resolution.empty()) {
+    std::smatch m;
+    static const std::regex wxh(R"((\d{1,5})x(\d{1,5}))");
+    if (!std::regex_match(f.resolution, m, wxh) || std::stoi(m[1]) < 1 || std::stoi(m[2]) < 1)
+      throw InputError("--resolution", "", "expected WIDTHxHEIGHT, e.g. 640x480, got '" + f.resolution + "'");
+    s.width = std::stoi(m[1]);
+    s.height = std::stoi(m[2]);
+  }
+  if (f.spp != 0) {
+    if (f.spp < 0) throw InputError("--spp", "", "must be at least 1");
+    s.spp = f.spp;
+  }
+  if (f.threads >= 0) s.threads = f.threads;
+  if (f.seed >= 0) s.seed = uint64_t(f.seed);
+}
+
+int render(const RenderFlags& flags) {
+  SceneDesc scene = parseSceneFile(flags.scene);
+  applyFlags(flags, scene);
+  const std::string output = flags.output.empty()
+                                 ? std::filesystem::path(flags.scene).stem().string() + ".png"
+                                 : flags.output;
+  imageFormatFor(output);  // reject a bad output name before any work
+  const RenderSettings& s = scene.settings;
+  World world(scene, s.intersector);
+  Camera camera(scene.camera, s.width, s.height);
+  auto integrator = makeIntegrator(s.integrator, world);
+  Film film(s.width, s.height);
+  const RenderResult result = renderFrame(camera, *integrator, {s.spp, s.seed, s.threads}, film);
+  writeImage(output, film, integrator->signedOutput(),
+             {{"Software", "isotrace"},
+              {"isotrace:spp", std::to_string(s.spp)},
+              {"isotrace:integrator", s.integrator},
+              {"isotrace:intersector", intersectorName(s.intersector)}});
+  if (!flags.quiet) {
+    const RayCounters& c = result.counters;
+    std::fprintf(stderr,
+                 "isotrace: %dx%d, %d spp, %s, %s: load %.2fs, build %.2fs, render %.2fs, "
+                 "%.2f Mrays/s; cells visited %llu, solved %llu, roots refined %llu\n",
+                 s.width, s.height, s.spp, s.integrator.c_str(),
+                 intersectorName(s.intersector).c_str(), world.loadSeconds(), world.buildSeconds(),
+                 result.seconds, (c.camera + c.shadow + c.indirect) / result.seconds * 1e-6,
+                 (unsigned long long)c.traversal.cellsVisited,
+                 (unsigned long long)c.traversal.cellsSolved,
+                 (unsigned long long)c.traversal.rootsRefined);
+  }
+  std::printf("%s\n", output.c_str());
+  return 0;
+}
+
+int info(const std::string& path) {
+  const SceneDesc scene = parseSceneFile(path);
+  World world(scene, scene.settings.intersector);
+  std::printf("scene %s\n", path.c_str());
+  std::printf("  film %dx%d, %d spp, integrator %s, intersector %s\n", scene.settings.width,
+              scene.settings.height, scene.settings.spp, scene.settings.integrator.c_str(),
+              intersectorName(scene.settings.intersector).c_str());
+  if (world.volumes().empty()) std::printf("  no volumes: no volume work is done\n");
+  for (size_t v = 0; v < world.volumes().size(); ++v) {
+    const VolumeInfo& vi = world.volumes()[v];
+    const Grid& g = *vi.grid;
+    std::printf("  volume %zu: %s\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
+                "origin (%g, %g, %g), spacing (%g, %g, %g)\n",
+                v, vi.name.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
+                g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
+                g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z);
+    for (const SurfaceInfo& s : world.surfaces())
+      if (s.volume == int(v))
+        std::printf("    iso-surface %g: %zu of %zu bricks active%s\n", s.iso,
+                    s.surface->activeBricks().size(), s.surface->totalBricks(),
+                    s.surface->activeBricks().empty() ? " (empty: not built)" : "");
+  }
+  return 0;
+}
+
+}  // namespace
+
+int runCommandLine(int argc, char** argv) {
+  CLI::App app{"isotrace: a path tracer for glTF meshes and exact iso-surfaces of volume data"};
+  app.require_subcommand(1);
+  RenderFlags flags;
+  CLI::App* renderCmd = app.add_subcommand("render", "render a scene to an EXR or PNG image");
+  renderCmd->add_option("scene", flags.scene, "scene file (JSON)")->required();
+  renderCmd->add_option("-o,--output", flags.output, "output image, .exr (linear) or .png (sRGB); default <scene>.png");
+  renderCmd->add_option("--spp", flags.spp, "samples per pixel");
+  renderCmd->add_option("--integrator", flags.integrator, std::string("integrator: ") + integratorList());
+  renderCmd->add_option("--intersector", flags.intersector, std::string("intersector: ") + intersectorList());
+  renderCmd->add_option("--resolution", flags.resolution, "image size WIDTHxHEIGHT");
+  renderCmd->add_option("--threads", flags.threads, "worker threads (0: all cores)");
+  renderCmd->add_option("--seed", flags.seed, "random seed");
+  renderCmd->add_flag("--quiet", flags.quiet, "print only the output path");
+  std::string infoScene;
+  CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
+  infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "isotrace: %s (see isotrace --help)\n", e.what());
+    return 2;
+  }
+  try {
+    if (*renderCmd) return render(flags);
+    if (*infoCmd) return info(infoScene);
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "isotrace: %s\n", e.what());
+    return 2;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "isotrace: out of memory\n");
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "isotrace: internal error: %s\n", e.what());
+    return 1;
+  }
+  return 1;
+}
+
+}  // namespace iso

@@ -1,0 +1,3 @@
+#include "renderer/cli.h"
+
+int main(int argc, char** argv) { return iso::runCommandLine(argc, argv); }

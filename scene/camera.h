@@ -1,0 +1,25 @@
+#pragma once
+// Pinhole camera: vertical field of view in degrees, image plane at distance 1.
+#include "scene/scene.h"
+
+namespace iso {
+
+struct Ray {
+  Vec3f org, dir;
+  float tnear = 0;
+  float tfar = 3.4e38f;
+};
+
+class Camera {
+ public:
+  Camera(const CameraDesc& desc, int width, int height);
+  // (x, y) in pixel units from the top-left corner of the image.
+  Ray generateRay(float x, float y) const;
+
+ private:
+  Vec3f m_origin, m_forward, m_right, m_up;
+  float m_tanHalf, m_aspect;
+  int m_width, m_height;
+};
+
+}  // namespace iso

@@ -1,0 +1,241 @@
+// The only file that includes nlohmann/json: the scene format is parsed here and nowhere else.
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "scene/scene.h"
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+using Json = nlohmann::json;
+namespace fs = std::filesystem;
+
+const char* typeName(const Json& j) {
+  switch (j.type()) {
+    case Json::value_t::object: return "an object";
+    case Json::value_t::array: return "an array";
+    case Json::value_t::string: return "a string";
+    case Json::value_t::boolean: return "a boolean";
+    case Json::value_t::null: return "null";
+    default: return "a number";
+  }
+}
+
+// Reads one JSON object, remembering which keys were used: finish() rejects the rest, so
+// a misspelled key is an error instead of a silently ignored setting.
+class ObjectReader {
+ public:
+  ObjectReader(const Json& j, std::string path, const std::string& file)
+      : m_json(j), m_path(std::move(path)), m_file(file) {
+    if (!j.is_object()) fail(m_path, std::string("expected an object, found ") + typeName(j));
+  }
+
+  [[noreturn]] void fail(const std::string& path, const std::string& what) const {
+    throw InputError(m_file, path.empty() ? "/" : path, what);
+  }
+  std::string at(const std::string& key) const { return m_path + "/" + key; }
+  bool has(const std::string& key) const { return m_json.contains(key); }
+  const Json* get(const std::string& key) {
+    m_used.insert(key);
+    auto it = m_json.find(key);
+    return it == m_json.end() ? nullptr : &*it;
+  }
+  const Json& require(const std::string& key) {
+    const Json* j = get(key);
+    if (!j) fail(at(key), "required key is missing");
+    return *j;
+  }
+
+  double number(const std::string& key, double fallback, double lo = -1e300, double hi = 1e300) {
+    const Json* j = get(key);
+    return j ? toNumber(*j, at(key), lo, hi) : fallback;
+  }
+  double toNumber(const Json& j, const std::string& path, double lo = -1e300, double hi = 1e300) const {
+    if (!j.is_number()) fail(path, std::string("expected a number, found ") + typeName(j));
+    const double v = j.get<double>();
+    if (!(v >= lo && v <= hi)) {
+      std::ostringstream msg;
+      msg << "value " << v << " is out of range [" << lo << ", " << hi << "]";
+      fail(path, msg.str());
+    }
+    return v;
+  }
+  int integer(const std::string& key, int fallback, int lo, int hi) {
+    const Json* j = get(key);
+    if (!j) return fallback;
+    if (!j->is_number_integer()) fail(at(key), std::string("expected a whole number, found ") + typeName(*j));
+    return int(toNumber(*j, at(key), lo, hi));
+  }
+  std::string string(const std::string& key, const std::string& fallback) {
+    const Json* j = get(key);
+    if (!j) return fallback;
+    if (!j->is_string()) fail(at(key), std::string("expected a string, found ") + typeName(*j));
+    return j->get<std::string>();
+  }
+  std::optional<Vec3d> vec3(const std::string& key) {
+    const Json* j = get(key);
+    if (!j) return std::nullopt;
+    if (!j->is_array() || j->size() != 3) fail(at(key), "expected an array of 3 numbers");
+    return Vec3d{toNumber((*j)[0], at(key) + "/0"), toNumber((*j)[1], at(key) + "/1"),
+                 toNumber((*j)[2], at(key) + "/2")};
+  }
+  void finish() const {
+    for (auto it = m_json.begin(); it != m_json.end(); ++it)
+      if (!m_used.count(it.key())) fail(at(it.key()), "unknown key '" + it.key() + "'");
+  }
+
+ private:
+  const Json& m_json;
+  std::string m_path;
+  const std::string& m_file;
+  std::set<std::string> m_used;
+};
+
+void parseCamera(ObjectReader r, CameraDesc& c) {
+  if (auto v = r.vec3("position")) c.position = *v;
+  if (auto v = r.vec3("look_at")) c.lookAt = *v;
+  if (auto v = r.vec3("up")) c.up = *v;
+  c.fov = r.number("fov", c.fov, 1e-3, 179);
+  if (length(c.lookAt - c.position) == 0) r.fail(r.at("look_at"), "camera looks at its own position");
+  if (length(cross(c.lookAt - c.position, c.up)) == 0) r.fail(r.at("up"), "up is parallel to the viewing direction");
+  r.finish();
+}
+
+}  // namespace
+
+const char* integratorList() { return "normals, eyelight"; }
+bool isKnownIntegrator(const std::string& name) { return name == "normals" || name == "eyelight"; }
+
+SceneDesc parseSceneText(const std::string& text, const std::string& path) {
+  Json root;
+  try {
+    root = Json::parse(text);
+  } catch (const Json::parse_error& e) {
+    // e.byte is the 1-based offset of the error; report it as line and column.
+    size_t line = 1, col = 1;
+    for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
+      if (text[i] == '\n') { ++line; col = 1; } else { ++col; }
+    }
+    std::string what = e.what();
+    const auto colon = what.rfind(": ");
+    if (colon != std::string::npos) what = what.substr(colon + 2);
+    throw InputError(path, "line " + std::to_string(line) + ", column " + std::to_string(col),
+                     "JSON syntax error: " + what);
+  }
+  const fs::path dir = fs::path(path).parent_path();
+  SceneDesc scene;
+  scene.path = path;
+  ObjectReader r(root, "", path);
+  if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path), scene.camera);
+  if (const Json* j = r.get("film")) {
+    ObjectReader f(*j, "/film", path);
+    scene.settings.width = f.integer("width", scene.settings.width, 1, 1 << 15);
+    scene.settings.height = f.integer("height", scene.settings.height, 1, 1 << 15);
+    f.finish();
+  }
+  if (const Json* j = r.get("integrator")) {
+    ObjectReader in(*j, "/integrator", path);
+    scene.settings.integrator = in.string("type", scene.settings.integrator);
+    if (!isKnownIntegrator(scene.settings.integrator))
+      in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
+                                      "' (known: " + integratorList() + ")");
+    scene.settings.spp = in.integer("spp", scene.settings.spp, 1, 1 << 20);
+    scene.settings.seed = uint64_t(in.integer("seed", 0, 0, 1 << 30));
+    in.finish();
+  }
+  if (const Json* j = r.get("intersector")) {
+    if (!j->is_string()) r.fail("/intersector", std::string("expected a string, found ") + typeName(*j));
+    std::string error;
+    if (!parseIntersector(j->get<std::string>(), scene.settings.intersector, error))
+      r.fail("/intersector", error);
+  }
+  if (const Json* j = r.get("volumes")) {
+    if (!j->is_array()) r.fail("/volumes", std::string("expected an array, found ") + typeName(*j));
+    for (size_t i = 0; i < j->size(); ++i) {
+      const std::string vp = "/volumes/" + std::to_string(i);
+      ObjectReader vr((*j)[i], vp, path);
+      VolumeDesc v;
+      v.where = vp;
+      const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
+      if (hasFile == hasProc) vr.fail(vp, "a volume needs exactly one of \"file\" and \"procedural\"");
+      if (hasFile) {
+        const std::string file = vr.string("file", "");
+        if (file.empty()) vr.fail(vr.at("file"), "empty file name");
+        v.file = fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
+        if (const Json* d = vr.get("dims")) {
+          if (!d->is_array() || d->size() != 3) vr.fail(vr.at("dims"), "expected an array of 3 whole numbers");
+          Vec3i dims;
+          for (int k = 0; k < 3; ++k) {
+            const std::string kp = vr.at("dims") + "/" + std::to_string(k);
+            if (!(*d)[k].is_number_integer()) vr.fail(kp, "expected a whole number");
+            dims[k] = int(vr.toNumber((*d)[k], kp, 2, 1 << 20));
+          }
+          v.layout.dims = dims;
+        }
+        if (vr.has("type")) {
+          ScalarType t;
+          const std::string name = vr.string("type", "");
+          if (!parseScalarType(name, t))
+            vr.fail(vr.at("type"), "unknown type '" + name + "' (uint8, uint16, int16, float32)");
+          v.layout.type = t;
+        }
+        const std::string endian = vr.string("endian", "little");
+        if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
+        v.layout.bigEndian = endian == "big";
+      } else {
+        ObjectReader pr(*vr.get("procedural"), vr.at("procedural"), path);
+        const std::string name = pr.string("field", "");
+        Field field;
+        if (!pr.has("field")) pr.fail(pr.at("field"), "required key is missing");
+        if (!parseField(name, field))
+          pr.fail(pr.at("field"), "unknown field '" + name + "' (sphere, torus, gyroid, marschner_lobb)");
+        v.field = field;
+        if (const Json* res = pr.get("resolution")) {
+          if (!res->is_array() || res->size() != 3) pr.fail(pr.at("resolution"), "expected an array of 3 whole numbers");
+          for (int k = 0; k < 3; ++k) {
+            const std::string kp = pr.at("resolution") + "/" + std::to_string(k);
+            if (!(*res)[k].is_number_integer()) pr.fail(kp, "expected a whole number");
+            v.resolution[k] = int(pr.toNumber((*res)[k], kp, 2, 4096));
+          }
+        }
+        pr.finish();
+      }
+      v.origin = vr.vec3("origin");
+      v.spacing = vr.vec3("spacing");
+      if (v.spacing && !(v.spacing->x > 0 && v.spacing->y > 0 && v.spacing->z > 0))
+        vr.fail(vr.at("spacing"), "spacing must be positive");
+      const Json& isos = vr.require("isosurfaces");
+      if (!isos.is_array() || isos.empty())
+        vr.fail(vr.at("isosurfaces"), "expected a non-empty array of iso-surfaces");
+      for (size_t k = 0; k < isos.size(); ++k) {
+        ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path);
+        IsoSurfaceDesc iso;
+        iso.value = ir.toNumber(ir.require("value"), ir.at("value"));
+        iso.color = ir.vec3("color");
+        ir.finish();
+        v.isosurfaces.push_back(iso);
+      }
+      vr.finish();
+      scene.volumes.push_back(std::move(v));
+    }
+  }
+  r.finish();
+  return scene;
+}
+
+SceneDesc parseSceneFile(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(path, "", "scene file not found");
+  std::ifstream in(path);
+  if (!in) throw InputError(path, "", "cannot open scene file");
+  std::stringstream text;
+  text << in.rdbuf();
+  return parseSceneText(text.str(), path);
+}
+
+}  // namespace iso
