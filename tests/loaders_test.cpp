@@ -1,0 +1,224 @@
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+#include "tests/test_util.h"
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+#include "volume/procedural.h"
+
+namespace iso {
+namespace {
+
+using test::dataPath;
+
+// Expected sums and one voxel per file were computed independently with Python from the
+// raw bytes (struct/gzip modules), not with this loader.
+struct RealFile {
+  const char* path;
+  Vec3i dims;
+  ScalarType type;
+  double sum;
+  Vec3i voxel;
+  float value;
+  Vec3d spacing;
+};
+
+void PrintTo(const RealFile& f, std::ostream* os) { *os << f.path; }
+
+class RealVolumeFiles : public ::testing::TestWithParam<RealFile> {};
+
+TEST_P(RealVolumeFiles, LoadWithTheRightLayoutAndValues) {
+  const RealFile& f = GetParam();
+  const Grid g = loadVolumeFile(dataPath(std::string("volumes/") + f.path));
+  EXPECT_EQ(g.dims(), f.dims);
+  EXPECT_EQ(g.type(), f.type);
+  EXPECT_DOUBLE_EQ(g.sum(), f.sum);
+  EXPECT_EQ(g.value(f.voxel.x, f.voxel.y, f.voxel.z), f.value);
+  EXPECT_NEAR(g.spacing().x, f.spacing.x, 1e-12);
+  EXPECT_NEAR(g.spacing().y, f.spacing.y, 1e-12);
+  EXPECT_NEAR(g.spacing().z, f.spacing.z, 1e-12);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Shared, RealVolumeFiles,
+    ::testing::Values(
+        RealFile{"bucky_32x32x32_uint8.raw", {32, 32, 32}, ScalarType::UInt8, 1174726, {16, 16, 16}, 1, {1, 1, 1}},
+        RealFile{"nucleon/nucleon.nrrd", {41, 41, 41}, ScalarType::UInt8, 2715326, {20, 20, 20}, 8, {1, 1, 1}},
+        RealFile{"neghip_64x64x64_uint8.raw", {64, 64, 64}, ScalarType::UInt8, 4824177, {32, 32, 32}, 0, {1, 1, 1}},
+        RealFile{"hydrogen_atom_128x128x128_uint8.raw", {128, 128, 128}, ScalarType::UInt8, 5990975, {64, 64, 64}, 62, {1, 1, 1}},
+        RealFile{"headsq/quarter.nhdr", {64, 64, 93}, ScalarType::Int16, 193392317, {32, 32, 46}, 122, {3.2, 3.2, 1.5}},
+        RealFile{"HeadMRVolume.mhd", {48, 62, 42}, ScalarType::UInt8, 3058332, {24, 31, 21}, 79, {4, 4, 4}},
+        RealFile{"ironProt.vtk", {68, 68, 68}, ScalarType::UInt8, 4131089, {34, 34, 34}, 131, {1, 1, 1}},
+        RealFile{"lidc2_chest_ct_256x256x133_uint8.raw.gz", {256, 256, 133}, ScalarType::UInt8, 61489178, {128, 128, 66}, 128, {1, 1, 1}}),
+    [](const auto& info) {
+      std::string n = info.param.path;
+      return n.substr(0, n.find_first_of("_./"));
+    });
+
+TEST(Loaders, SciVisNamesCarryTheLayout) {
+  Vec3i dims;
+  ScalarType type;
+  ASSERT_TRUE(parseSciVisName("/a/b/name_256x256x128_uint16.raw", dims, type));
+  EXPECT_EQ(dims, (Vec3i{256, 256, 128}));
+  EXPECT_EQ(type, ScalarType::UInt16);
+  ASSERT_TRUE(parseSciVisName("x_2x3x4_float32.raw.gz", dims, type));
+  EXPECT_EQ(type, ScalarType::Float32);
+  EXPECT_FALSE(parseSciVisName("plain.raw", dims, type));
+  EXPECT_FALSE(parseSciVisName("x_2x3x4_complex.raw", dims, type));
+}
+
+// Writes a small int16 big-endian volume in several containers and reads it back.
+class SyntheticFiles : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir = test::scratchDir();
+    for (int i = 0; i < 4 * 3 * 2; ++i) values.push_back(int16_t(i * 37 - 300));
+    for (int16_t v : values) {
+      le.push_back(char(v & 0xff)); le.push_back(char((v >> 8) & 0xff));
+      be.push_back(char((v >> 8) & 0xff)); be.push_back(char(v & 0xff));
+    }
+  }
+  void expectValues(const Grid& g) {
+    ASSERT_EQ(g.dims(), (Vec3i{4, 3, 2}));
+    ASSERT_EQ(g.type(), ScalarType::Int16);
+    for (size_t i = 0; i < values.size(); ++i) EXPECT_EQ(g.value(i), float(values[i])) << i;
+  }
+  static std::string gzip(const std::string& data) {
+    z_stream zs{};
+    deflateInit2(&zs, 6, Z_DEFLATED, 16 + MAX_WBITS, 8, Z_DEFAULT_STRATEGY);
+    std::string out(deflateBound(&zs, uLong(data.size())) + 32, '\0');
+    zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
+    zs.avail_in = uInt(data.size());
+    zs.next_out = reinterpret_cast<Bytef*>(out.data());
+    zs.avail_out = uInt(out.size());
+    deflate(&zs, Z_FINISH);
+    out.resize(zs.total_out);
+    deflateEnd(&zs);
+    return out;
+  }
+  std::string dir;
+  std::vector<int16_t> values;
+  std::string le, be;
+};
+
+TEST_F(SyntheticFiles, NrrdAttachedRawBigEndian) {
+  test::writeBytes(dir + "/a.nrrd", "NRRD0004\n# comment\ntype: int16\ndimension: 3\nsizes: 4 3 2\n"
+                                    "endian: big\nencoding: raw\nspace origin: (1,2,3)\n\n" + be);
+  const Grid g = loadVolumeFile(dir + "/a.nrrd");
+  expectValues(g);
+  EXPECT_EQ(g.origin(), (Vec3d{1, 2, 3}));
+}
+
+TEST_F(SyntheticFiles, NrrdAttachedGzipAndAscii) {
+  test::writeBytes(dir + "/g.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\n"
+                                    "endian: little\nencoding: gzip\n\n" + gzip(le));
+  expectValues(loadVolumeFile(dir + "/g.nrrd"));
+  std::ostringstream text;
+  for (int16_t v : values) text << v << "\n";
+  test::writeBytes(dir + "/t.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\n"
+                                    "encoding: ascii\n\n" + text.str());
+  expectValues(loadVolumeFile(dir + "/t.nrrd"));
+}
+
+TEST_F(SyntheticFiles, NrrdDetachedListAndPattern) {
+  // Two slices of 4x3 int16 each, named in a LIST and in a %03d pattern.
+  test::writeBytes(dir + "/s_001.raw", le.substr(0, 24));
+  test::writeBytes(dir + "/s_002.raw", le.substr(24));
+  test::writeText(dir + "/list.nhdr", "NRRD0004\ntype: int16\ndimension: 3\nsizes: 4 3 2\n"
+                                      "encoding: raw\ndata file: LIST\ns_001.raw\ns_002.raw\n");
+  expectValues(loadVolumeFile(dir + "/list.nhdr"));
+  test::writeText(dir + "/pat.nhdr", "NRRD0004\ntype: int16\ndimension: 3\nsizes: 4 3 2\n"
+                                     "encoding: raw\ndata file: s_%03d.raw 1 2 1 2\n");
+  expectValues(loadVolumeFile(dir + "/pat.nhdr"));
+}
+
+TEST_F(SyntheticFiles, MetaImageAndVtk) {
+  test::writeBytes(dir + "/v.raw", be);
+  test::writeText(dir + "/m.mhd", "NDims = 3\nDimSize = 4 3 2\nElementSpacing = 0.5 1 2\n"
+                                  "ElementType = MET_SHORT\nElementByteOrderMSB = True\nElementDataFile = v.raw\n");
+  const Grid m = loadVolumeFile(dir + "/m.mhd");
+  expectValues(m);
+  EXPECT_EQ(m.spacing(), (Vec3d{0.5, 1, 2}));
+  test::writeBytes(dir + "/b.vtk", "# vtk DataFile Version 3.0\nt\nBINARY\nDATASET STRUCTURED_POINTS\n"
+                                   "DIMENSIONS 4 3 2\nSPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 24\n"
+                                   "SCALARS s short 1\nLOOKUP_TABLE default\n" + be + "\n");
+  expectValues(loadVolumeFile(dir + "/b.vtk"));
+  std::ostringstream text;
+  for (int16_t v : values) text << v << " ";
+  test::writeBytes(dir + "/a.vtk", "# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\n"
+                                   "DIMENSIONS 4 3 2\nSPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 24\n"
+                                   "SCALARS s short\nLOOKUP_TABLE default\n" + text.str() + "\n");
+  expectValues(loadVolumeFile(dir + "/a.vtk"));
+}
+
+// Bad input is an InputError whose message names the file and the problem.
+void expectInputError(const std::string& file, const std::string& fragment, RawLayout layout = {}) {
+  try {
+    loadVolumeFile(file, layout);
+    FAIL() << "no error for " << file;
+  } catch (const InputError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(file), std::string::npos) << msg;
+    EXPECT_NE(msg.find(fragment), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << "one line: " << msg;
+  }
+}
+
+TEST_F(SyntheticFiles, BadInputIsNamed) {
+  expectInputError(dir + "/missing.raw", "file not found");
+  test::writeBytes(dir + "/short_4x3x2_int16.raw", le.substr(0, 40));
+  expectInputError(dir + "/short_4x3x2_int16.raw", "needs 48");
+  test::writeText(dir + "/type.nrrd", "NRRD0004\ntype: double\ndimension: 3\nsizes: 4 3 2\nencoding: raw\n\n");
+  expectInputError(dir + "/type.nrrd", "unsupported type 'double'");
+  test::writeText(dir + "/enc.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\nencoding: bzip2\n\n");
+  expectInputError(dir + "/enc.nrrd", "line 5: unsupported encoding 'bzip2'");
+  test::writeText(dir + "/zero.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 0 3 2\nencoding: raw\n\n");
+  expectInputError(dir + "/zero.nrrd", "dimensions must be positive");
+  test::writeText(dir + "/spacing.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\n"
+                                         "spacings: 1 -1 1\nencoding: raw\n\n" + le);
+  expectInputError(dir + "/spacing.nrrd", "spacing must be positive");
+  test::writeText(dir + "/spacing.mhd", "NDims = 3\nDimSize = 4 3 2\nElementSpacing = 1 0 1\n"
+                                        "ElementType = MET_SHORT\nElementDataFile = v.raw\n");
+  expectInputError(dir + "/spacing.mhd", "spacing must be positive");
+  const std::string gz = gzip(le);
+  test::writeBytes(dir + "/cut_4x3x2_int16.raw.gz", gz.substr(0, gz.size() / 2));
+  expectInputError(dir + "/cut_4x3x2_int16.raw.gz", "truncated compressed data");
+  test::writeBytes(dir + "/anonymous.raw", le);
+  expectInputError(dir + "/anonymous.raw", "needs \"dims\"");
+  std::string nan = le;
+  const float bad = std::numeric_limits<float>::quiet_NaN();
+  std::string floats(4 * 24, '\0');
+  std::memcpy(&floats[4 * 5], &bad, 4);
+  test::writeBytes(dir + "/nan_4x3x2_float32.raw", floats);
+  expectInputError(dir + "/nan_4x3x2_float32.raw", "voxel (1, 1, 0): NaN value");
+}
+
+TEST(Loaders, TruncatedRealGzipIsAnError) {
+  const std::string dir = test::scratchDir();
+  std::ifstream in(dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz"), std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string cut = dir + "/lidc2_chest_ct_256x256x133_uint8.raw.gz";
+  test::writeBytes(cut, bytes.substr(0, bytes.size() / 3));
+  expectInputError(cut, "truncated compressed data");
+}
+
+TEST(Procedural, SphereFieldIsTheDistanceToTheCentre) {
+  const Grid g = makeProceduralGrid(Field::Sphere, {5, 5, 5});
+  EXPECT_EQ(g.value(2, 2, 2), 0.f);
+  EXPECT_FLOAT_EQ(g.value(4, 2, 2), 1.f);
+  EXPECT_FLOAT_EQ(g.value(0, 0, 0), float(std::sqrt(3.0)));
+  EXPECT_EQ(g.origin(), (Vec3d{-1, -1, -1}));
+  EXPECT_EQ(g.spacing(), (Vec3d{0.5, 0.5, 0.5}));
+  EXPECT_NEAR(evalField(Field::Torus, {0.6, 0, 0}), 0, 1e-12);
+  EXPECT_NEAR(evalField(Field::Gyroid, {0, 0, 0}), 0, 1e-12);
+  // Marschner-Lobb at the origin: (1 - 0 + 0.25 (1 + cos(12 pi))) / 2.5 = 0.6.
+  EXPECT_NEAR(evalField(Field::MarschnerLobb, {0, 0, 0}), 0.6, 1e-12);
+}
+
+}  // namespace
+}  // namespace iso

@@ -492,7 +492,8 @@ Grid loadVtk(const std::string& path) {
   if (nextLine().rfind("# vtk DataFile", 0) != 0)
     throw InputError(path, "line 1", "not a legacy VTK file (missing '# vtk DataFile' line)");
   nextLine();  // title
-  const std::string format = nextLine();
+  std::string format;
+  do { format = nextLine(); } while (format.empty());
   const bool binary = format == "BINARY";
   if (!binary && format != "ASCII") throw InputError(path, here(), "expected ASCII or BINARY");
   std::string line;
@@ -566,6 +567,7 @@ Grid loadVtk(const std::string& path) {
 }
 
 Grid loadRaw(const std::string& path, const RawLayout& layout) {
+  Bytes data = readFile(path);
   Vec3i dims;
   ScalarType type;
   const bool named = parseSciVisName(path, dims, type);
@@ -576,7 +578,6 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   if (!layout.type && !named)
     throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
   checkDims(dims, path, "");
-  Bytes data = readFile(path);
   if (isGzip(data)) data = inflateBytes(data, path);
   return makeGrid(dims, type, data, layout.bigEndian, path);
 }
