@@ -23,7 +23,7 @@ int main(int argc, char** argv) {
   cases.push_back({"gyroid 64^3 iso 0", makeProceduralGrid(Field::Gyroid, {64, 64, 64}), 0});
   cases.push_back({"marschner-lobb 41^3 iso 0.5", makeProceduralGrid(Field::MarschnerLobb, {41, 41, 41}), 0.5});
   const char* specs[] = {"linear", "neubauer", "schwarze", "isolation:1", "isolation:2",
-                         "isolation", "isolation:8", "reference"};
+                         "isolation:4", "isolation", "reference"};
   std::printf("%-28s %-10s %-12s %8s %8s %8s %8s %10s %10s %10s %8s\n", "volume", "rays", "intersector",
               "refHits", "tangent", "misses", "false", "median|dt|", "p99|dt|", "max|dt|", "ns/ray");
   for (const Case& c : cases) {
