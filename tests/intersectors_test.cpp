@@ -10,18 +10,27 @@
 namespace iso {
 namespace {
 
+// A segment from corner values (iso already subtracted) and its local end points, with
+// the end values computed the way the traversal computes them.
+template <typename Real>
+CellSegment<Real> makeSegment(const Real g[8], Vec3<Real> a, Vec3<Real> b) {
+  CellSegment<Real> seg;
+  for (int c = 0; c < 8; ++c) seg.g[c] = g[c];
+  seg.a = a;
+  seg.b = b;
+  seg.f0 = trilinear(seg.g, seg.a);
+  seg.f1 = trilinear(seg.g, seg.b);
+  return seg;
+}
+
 // A cell whose value is low at two opposite corners and high elsewhere: along the main
 // diagonal f(s) = 50 - 100((1-s)^3 + s^3) (iso 50 subtracted), negative at both ends and
 // positive in the middle. The ray enters and leaves outside but crosses twice, at
 // s = (3 - sqrt(3)) / 6 and its mirror image.
 CellSegment<float> doubleCrossingCell() {
-  CellSegment<float> seg;
-  for (int c = 0; c < 8; ++c) seg.g[c] = (c == 0 || c == 7) ? 0.f - 50.f : 100.f - 50.f;
-  seg.a = {0, 0, 0};
-  seg.b = {1, 1, 1};
-  seg.f0 = trilinear(seg.g, seg.a);
-  seg.f1 = trilinear(seg.g, seg.b);
-  return seg;
+  float g[8];
+  for (int c = 0; c < 8; ++c) g[c] = (c == 0 || c == 7) ? 0.f - 50.f : 100.f - 50.f;
+  return makeSegment<float>(g, {0, 0, 0}, {1, 1, 1});
 }
 
 TEST(Intersectors, LinearAndNeubauerMissADoubleCrossingIsolationFindsIt) {
@@ -39,12 +48,9 @@ TEST(Intersectors, LinearAndNeubauerMissADoubleCrossingIsolationFindsIt) {
   EXPECT_LE(std::fabs(root.s - expected), root.sError);
   EXPECT_TRUE(IsolationIntersector{}.any(seg));
 
-  CellSegment<double> segD;
-  for (int c = 0; c < 8; ++c) segD.g[c] = seg.g[c];
-  segD.a = {0, 0, 0};
-  segD.b = {1, 1, 1};
-  segD.f0 = trilinear(segD.g, segD.a);
-  segD.f1 = trilinear(segD.g, segD.b);
+  double gD[8];
+  for (int c = 0; c < 8; ++c) gD[c] = seg.g[c];
+  const CellSegment<double> segD = makeSegment<double>(gD, {0, 0, 0}, {1, 1, 1});
   Root<double> ref;
   ASSERT_TRUE(ReferenceIntersector{}.first(segD, ref));
   EXPECT_FALSE(ref.tangent);
@@ -54,12 +60,9 @@ TEST(Intersectors, LinearAndNeubauerMissADoubleCrossingIsolationFindsIt) {
 TEST(Intersectors, ReferenceReportsTangentRoots) {
   // Lower the same cell until its maximum along the diagonal (f = 25 at s = 0.5 with iso 50)
   // just touches zero: iso 75 puts the maximum exactly on the surface.
-  CellSegment<double> seg;
-  for (int c = 0; c < 8; ++c) seg.g[c] = ((c == 0 || c == 7) ? 0.0 : 100.0) - 75.0;
-  seg.a = {0, 0, 0};
-  seg.b = {1, 1, 1};
-  seg.f0 = trilinear(seg.g, seg.a);
-  seg.f1 = trilinear(seg.g, seg.b);
+  double g[8];
+  for (int c = 0; c < 8; ++c) g[c] = ((c == 0 || c == 7) ? 0.0 : 100.0) - 75.0;
+  const CellSegment<double> seg = makeSegment<double>(g, {0, 0, 0}, {1, 1, 1});
   Root<double> root;
   ASSERT_TRUE(ReferenceIntersector{}.first(seg, root));
   EXPECT_TRUE(root.tangent);
@@ -81,12 +84,9 @@ TEST(Intersectors, SchwarzeSolvesAWellConditionedCubic) {
 TEST(Intersectors, SchwarzeFailsOnAxisParallelRays) {
   // Along an axis the trilinear field is linear: c3 = c2 = 0 and the published solver
   // divides by zero. It finds nothing where every other intersector finds the crossing.
-  CellSegment<float> seg;
-  for (int c = 0; c < 8; ++c) seg.g[c] = (c & 1) ? 10.f : -10.f;
-  seg.a = {0, 0.3f, 0.6f};
-  seg.b = {1, 0.3f, 0.6f};
-  seg.f0 = trilinear(seg.g, seg.a);
-  seg.f1 = trilinear(seg.g, seg.b);
+  float g[8];
+  for (int c = 0; c < 8; ++c) g[c] = (c & 1) ? 10.f : -10.f;
+  const CellSegment<float> seg = makeSegment<float>(g, {0, 0.3f, 0.6f}, {1, 0.3f, 0.6f});
   Root<float> root;
   EXPECT_FALSE(SchwarzeIntersector{}.first(seg, root));
   ASSERT_TRUE(IsolationIntersector{}.first(seg, root));

@@ -109,8 +109,6 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
     return Real(pos == entering ? 0 : 1);
   };
 
-  const Real originScale =
-      std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) / length(ray.dir);
   Real ta = t0;
   int enterAxis = entryAxis;
   for (;;) {
@@ -143,6 +141,9 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
           hit.t = ta + root.s * len;
           // The bracket in s, plus rounding: of the ray's origin in grid coordinates (it
           // moves the ray by eps |org|, i.e. t by that over the speed), and of t itself.
+          const Real originScale =
+              std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) /
+              length(ray.dir);
           hit.tError = root.sError * len + Real(2) * std::numeric_limits<Real>::epsilon() *
                                                (originScale + std::fabs(hit.t) + len);
           hit.cell = cell;
