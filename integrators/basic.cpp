@@ -15,13 +15,13 @@ class NormalsIntegrator final : public Integrator {
     ++counters.camera;
     Hit hit;
     if (!m_world.intersect(ray, hit, counters.traversal)) return {0, 0, 0};
-    return hit.normal;
+    return hit.shading;
   }
   bool signedOutput() const override { return true; }
 };
 
-// A light at the eye: Lambert with the cosine to the viewer, both sides of a surface lit,
-// each iso-surface in its own colour.
+// A light at the eye: the material's base colour (textures included) times a Lambert term
+// with the cosine to the viewer, both sides lit; emitters show their emission.
 class EyelightIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
@@ -29,8 +29,8 @@ class EyelightIntegrator final : public Integrator {
     ++counters.camera;
     Hit hit;
     if (!m_world.intersect(ray, hit, counters.traversal)) return {0, 0, 0};
-    const float cosine = std::fabs(dot(hit.normal, ray.dir));
-    return m_world.surfaces()[hit.surface].color * (0.1f + 0.9f * cosine);
+    const float cosine = std::fabs(dot(hit.shading, ray.dir));
+    return m_world.albedo(hit) * (0.1f + 0.9f * cosine) + m_world.emitted(hit, -ray.dir);
   }
 };
 

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <regex>
 
 #include "renderer/render.h"
@@ -59,7 +60,8 @@ int render(const RenderFlags& flags) {
   imageFormatFor(output);  // reject a bad output name before any work
   const RenderSettings& s = scene.settings;
   World world(scene, s.intersector);
-  Camera camera(scene.camera, s.width, s.height);
+  for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+  Camera camera(world.camera(), s.width, s.height);
   auto integrator = makeIntegrator(s.integrator, world);
   Film film(s.width, s.height);
   const RenderResult result = renderFrame(camera, *integrator, {s.spp, s.seed, s.threads}, film);
@@ -84,28 +86,87 @@ int render(const RenderFlags& flags) {
   return 0;
 }
 
+const char* materialTypeName(MaterialType t) {
+  switch (t) {
+    case MaterialType::Diffuse: return "diffuse";
+    case MaterialType::MetallicRoughness: return "metallic_roughness";
+    case MaterialType::Conductor: return "conductor";
+    case MaterialType::Dielectric: return "dielectric";
+    case MaterialType::Emissive: return "emissive";
+  }
+  return "?";
+}
+
+const char* lightKindName(Light::Kind k) {
+  switch (k) {
+    case Light::Kind::Point: return "point";
+    case Light::Kind::Spot: return "spot";
+    case Light::Kind::Directional: return "directional";
+    case Light::Kind::Environment: return "environment";
+    case Light::Kind::Area: return "area (emissive triangles)";
+  }
+  return "?";
+}
+
 int info(const std::string& path) {
   const SceneDesc scene = parseSceneFile(path);
   World world(scene, scene.settings.intersector);
+  for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+  const RenderSettings& s = scene.settings;
   std::printf("scene %s\n", path.c_str());
-  std::printf("  film %dx%d, %d spp, integrator %s, intersector %s\n", scene.settings.width,
-              scene.settings.height, scene.settings.spp, scene.settings.integrator.c_str(),
-              intersectorName(scene.settings.intersector).c_str());
-  if (world.volumes().empty()) std::printf("  no volumes: no volume work is done\n");
+  std::printf("  film %dx%d, %d spp, integrator %s (max depth %d), intersector %s\n", s.width, s.height, s.spp,
+              s.integrator.c_str(), s.maxDepth, intersectorName(s.intersector).c_str());
+  const CameraDesc& c = world.camera();
+  std::printf("  camera%s: position (%g, %g, %g), looking at (%g, %g, %g), fov %g degrees\n",
+              scene.camera.gltfCamera.empty() ? "" : (" (glTF camera " + scene.camera.gltfCamera + ")").c_str(),
+              c.position.x, c.position.y, c.position.z, c.lookAt.x, c.lookAt.y, c.lookAt.z, c.fov);
+  std::vector<std::string> skipped;
+  if (world.meshes().empty()) skipped.push_back("no meshes: no triangle geometry is built");
+  size_t images = 0;
+  for (size_t m = 0; m < world.meshes().size(); ++m) {
+    const MeshInfo& mi = world.meshes()[m];
+    images += mi.images;
+    std::printf("  mesh %zu: %s\n    %zu triangles in the world (%zu stored), %zu glTF meshes, %zu placements "
+                "(%zu as Embree instances); %zu materials, %zu textures, %zu cameras, %zu lights in the file\n",
+                m, mi.name.c_str(), mi.triangles, mi.uniqueTriangles, mi.meshes, mi.instances, mi.embreeInstances,
+                mi.materials, mi.textures, mi.cameras, mi.lights);
+  }
+  if (world.volumes().empty()) skipped.push_back("no volumes: no grid, brick or iso-surface work is done");
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
     std::printf("  volume %zu: %s\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
-                "origin (%g, %g, %g), spacing (%g, %g, %g)\n",
+                "origin (%g, %g, %g), spacing (%g, %g, %g)%s\n",
                 v, vi.name.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
                 g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
-                g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z);
-    for (const SurfaceInfo& s : world.surfaces())
-      if (s.volume == int(v))
-        std::printf("    iso-surface %g: %zu of %zu bricks active%s\n", s.iso,
-                    s.surface->activeBricks().size(), s.surface->totalBricks(),
-                    s.surface->activeBricks().empty() ? " (empty: not built)" : "");
+                g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
+                vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
+    for (const SurfaceInfo& si : world.surfaces())
+      if (si.volume == int(v))
+        std::printf("    iso-surface %g: %zu of %zu bricks active, material %s%s\n", si.iso,
+                    si.surface->activeBricks().size(), si.surface->totalBricks(),
+                    world.materials()[si.material].name.c_str(),
+                    si.surface->activeBricks().empty() ? " (empty: not built)" : "");
   }
+  std::printf("  materials in use: %zu\n", world.materials().size());
+  for (const Material& m : world.materials())
+    std::printf("    %s: %s%s\n", m.name.c_str(), materialTypeName(m.type), m.emits() ? ", emissive" : "");
+  std::printf("  textures decoded: %zu", world.textures().size());
+  if (images > world.textures().size()) std::printf(" (images in glTF files: %zu; unused ones are not decoded)", images);
+  std::printf("\n");
+  std::map<std::string, int> lightCounts;
+  size_t areaTriangles = 0;
+  for (const Light& l : world.lights()) {
+    ++lightCounts[lightKindName(l.kind())];
+    areaTriangles += l.triangleCount();
+  }
+  std::printf("  lights: %zu%s\n", world.lights().size(), world.lights().empty() ? " (direct lighting sees none)" : "");
+  for (const auto& [kind, count] : lightCounts)
+    std::printf("    %d %s%s\n", count, kind.c_str(),
+                kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
+  if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
+  for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
+  std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
   return 0;
 }
 

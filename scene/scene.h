@@ -2,9 +2,12 @@
 // The scene description as read from a scene file: what to load and how to render it.
 // Nothing is loaded here; World (world.h) turns this into grids and an Embree scene.
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
+
+#include "scene/transform.h"
 
 #include "volume/intersectors.h"
 #include "volume/loaders.h"
@@ -17,11 +20,56 @@ struct CameraDesc {
   Vec3d lookAt{0, 0, 0};
   Vec3d up{0, 1, 0};
   double fov = 40;  // vertical, degrees
+  // Take the camera from a glTF file of the scene instead: a camera name, or "#N" for the
+  // N-th camera over all meshes in scene order. Resolved when the meshes are loaded.
+  std::string gltfCamera;
+};
+
+// A named material of the scene file (materials of glTF files are read from the file).
+enum class MaterialType { Diffuse, MetallicRoughness, Conductor, Dielectric, Emissive };
+
+struct MaterialDesc {
+  std::string where;
+  MaterialType type = MaterialType::Diffuse;
+  Vec3d color{0.8, 0.8, 0.8};  // albedo / base colour / F0 / transmission tint
+  double metallic = 0;
+  double roughness = 0.5;
+  double ior = 1.5;
+  Vec3d emission{0, 0, 0};  // radiance of an emissive material
+  bool twoSided = false;    // emission from both sides
 };
 
 struct IsoSurfaceDesc {
   double value = 0;
-  std::optional<Vec3d> color;  // shown by the eyelight integrator
+  std::optional<Vec3d> color;  // shown by the eyelight integrator when there is no material
+  std::string material;        // name in SceneDesc::materials; empty: default grey diffuse
+  std::string materialWhere;   // JSON path of the reference, for messages
+  bool solidAbove = true;      // the solid (e.g. glass) is where value > iso
+};
+
+enum class MeshShape { None, Sphere, Quad };
+
+struct MeshDesc {
+  std::string where;
+  std::string file;  // glTF (.gltf / .glb), resolved; empty for a built-in shape
+  MeshShape shape = MeshShape::None;
+  Transform transform;
+  std::string material;  // overrides every material of the file when set
+  std::string materialWhere;
+};
+
+enum class LightType { Point, Spot, Directional, Environment };
+
+struct LightDesc {
+  std::string where;
+  LightType type = LightType::Point;
+  Vec3d position{0, 0, 0};
+  Vec3d direction{0, -1, 0};       // the way the light travels (spot, directional)
+  Vec3d intensity{1, 1, 1};        // W/sr (point, spot)
+  Vec3d irradiance{1, 1, 1};       // W/m^2 on a surface facing the light (directional)
+  Vec3d radiance{1, 1, 1};         // W/(sr m^2) (environment; multiplies the image)
+  double innerAngle = 0, outerAngle = 45;  // spot cone half-angles, degrees
+  std::string file;                // environment: lat-long image, resolved
 };
 
 struct VolumeDesc {
@@ -31,6 +79,7 @@ struct VolumeDesc {
   Vec3i resolution{64, 64, 64};
   RawLayout layout;
   std::optional<Vec3d> origin, spacing;
+  Transform transform;  // applied after origin/spacing place the grid
   std::vector<IsoSurfaceDesc> isosurfaces;
 };
 
@@ -38,6 +87,8 @@ struct RenderSettings {
   int width = 640;
   int height = 480;
   int spp = 4;
+  int maxDepth = 5;
+  double aoDistance = 1;
   std::string integrator = "eyelight";
   IntersectorSpec intersector;
   uint64_t seed = 0;
@@ -48,7 +99,10 @@ struct SceneDesc {
   std::string path;
   CameraDesc camera;
   RenderSettings settings;
+  std::vector<MeshDesc> meshes;
   std::vector<VolumeDesc> volumes;
+  std::map<std::string, MaterialDesc> materials;
+  std::vector<LightDesc> lights;
 };
 
 // Reads and validates a scene file. Any problem is an InputError naming the JSON path.

@@ -1,4 +1,4 @@
-// The only file that includes nlohmann/json: the scene format is parsed here and nowhere else.
+// The scene format is parsed here and nowhere else (gltf.cpp is the other user of nlohmann/json).
 #include <nlohmann/json.hpp>
 
 #include <filesystem>
@@ -84,6 +84,37 @@ class ObjectReader {
     return Vec3d{toNumber((*j)[0], at(key) + "/0"), toNumber((*j)[1], at(key) + "/1"),
                  toNumber((*j)[2], at(key) + "/2")};
   }
+  // A colour: three numbers, or one number for grey.
+  std::optional<Vec3d> rgb(const std::string& key, double lo = 0, double hi = 1e30) {
+    const Json* j = get(key);
+    if (!j) return std::nullopt;
+    if (j->is_number()) {
+      const double v = toNumber(*j, at(key), lo, hi);
+      return Vec3d{v, v, v};
+    }
+    if (!j->is_array() || j->size() != 3) fail(at(key), "expected a number or an array of 3 numbers");
+    return Vec3d{toNumber((*j)[0], at(key) + "/0", lo, hi), toNumber((*j)[1], at(key) + "/1", lo, hi),
+                 toNumber((*j)[2], at(key) + "/2", lo, hi)};
+  }
+  bool boolean(const std::string& key, bool fallback) {
+    const Json* j = get(key);
+    if (!j) return fallback;
+    if (!j->is_boolean()) fail(at(key), std::string("expected true or false, found ") + typeName(*j));
+    return j->get<bool>();
+  }
+  // A string that must be one of `choices` (listed in the message otherwise).
+  std::string choice(const std::string& key, const std::string& fallback,
+                     std::initializer_list<const char*> choices) {
+    const std::string v = string(key, fallback);
+    std::string list;
+    for (const char* c : choices) {
+      if (v == c) return v;
+      list += std::string(list.empty() ? "" : ", ") + c;
+    }
+    fail(at(key), "unknown value '" + v + "' (expected one of: " + list + ")");
+  }
+  const std::string& path() const { return m_path; }
+  const std::string& file() const { return m_file; }
   void finish() const {
     for (auto it = m_json.begin(); it != m_json.end(); ++it)
       if (!m_used.count(it.key())) fail(at(it.key()), "unknown key '" + it.key() + "'");
@@ -97,6 +128,16 @@ class ObjectReader {
 };
 
 void parseCamera(ObjectReader r, CameraDesc& c) {
+  if (const Json* g = r.get("gltf_camera")) {
+    if (g->is_string()) c.gltfCamera = g->get<std::string>();
+    else if (g->is_number_integer() && g->get<long long>() >= 0) c.gltfCamera = "#" + std::to_string(g->get<long long>());
+    else r.fail(r.at("gltf_camera"), "expected a camera name or a camera index (a whole number >= 0)");
+    if (c.gltfCamera.empty()) r.fail(r.at("gltf_camera"), "empty camera name");
+    for (const char* key : {"position", "look_at", "up", "fov"})
+      if (r.has(key)) r.fail(r.at(key), "not allowed together with gltf_camera");
+    r.finish();
+    return;
+  }
   if (auto v = r.vec3("position")) c.position = *v;
   if (auto v = r.vec3("look_at")) c.lookAt = *v;
   if (auto v = r.vec3("up")) c.up = *v;
@@ -104,6 +145,124 @@ void parseCamera(ObjectReader r, CameraDesc& c) {
   if (length(c.lookAt - c.position) == 0) r.fail(r.at("look_at"), "camera looks at its own position");
   if (length(cross(c.lookAt - c.position, c.up)) == 0) r.fail(r.at("up"), "up is parallel to the viewing direction");
   r.finish();
+}
+
+// {"matrix": [16 numbers, row-major]} or any of {"translate", "rotate", "scale"}, applied as
+// scale first, then rotate, then translate.
+Transform parseTransform(ObjectReader r) {
+  if (const Json* m = r.get("matrix")) {
+    for (const char* key : {"translate", "rotate", "scale"})
+      if (r.has(key)) r.fail(r.at(key), "not allowed together with matrix");
+    if (!m->is_array() || m->size() != 16) r.fail(r.at("matrix"), "expected an array of 16 numbers (row-major 4x4)");
+    double v[16];
+    for (int i = 0; i < 16; ++i) v[i] = r.toNumber((*m)[i], r.at("matrix") + "/" + std::to_string(i));
+    if (v[12] != 0 || v[13] != 0 || v[14] != 0 || v[15] != 1)
+      r.fail(r.at("matrix"), "the last row must be [0, 0, 0, 1] (an affine transform)");
+    const Transform t = Transform::fromRows(v);
+    if (!t.isFiniteInvertible()) r.fail(r.at("matrix"), "the matrix is not invertible");
+    r.finish();
+    return t;
+  }
+  Transform t;
+  if (const Json* s = r.get("scale")) {
+    Vec3d sv;
+    if (s->is_number()) {
+      const double k = r.toNumber(*s, r.at("scale"));
+      sv = {k, k, k};
+    } else {
+      auto v = r.vec3("scale");
+      sv = *v;
+    }
+    if (sv.x == 0 || sv.y == 0 || sv.z == 0) r.fail(r.at("scale"), "a scale of 0 flattens the object");
+    t = Transform::scale(sv);
+  }
+  if (const Json* j = r.get("rotate")) {
+    ObjectReader rot(*j, r.at("rotate"), r.file());
+    const auto axis = rot.vec3("axis");
+    if (!axis) rot.fail(rot.at("axis"), "required key is missing");
+    if (length(*axis) == 0) rot.fail(rot.at("axis"), "the rotation axis is zero");
+    const double degrees = rot.toNumber(rot.require("degrees"), rot.at("degrees"));
+    rot.finish();
+    t = Transform::rotate(degrees, *axis) * t;
+  }
+  if (auto v = r.vec3("translate")) t = Transform::translate(*v) * t;
+  r.finish();
+  return t;
+}
+
+MaterialDesc parseMaterial(ObjectReader r) {
+  MaterialDesc m;
+  m.where = r.path();
+  if (!r.has("type")) r.fail(r.at("type"), "required key is missing");
+  const std::string type =
+      r.choice("type", "diffuse", {"diffuse", "metallic_roughness", "conductor", "dielectric", "emissive"});
+  if (type == "diffuse") {
+    m.type = MaterialType::Diffuse;
+    m.color = r.rgb("color", 0, 1).value_or(m.color);
+  } else if (type == "metallic_roughness") {
+    m.type = MaterialType::MetallicRoughness;
+    m.color = r.rgb("color", 0, 1).value_or(m.color);
+    m.metallic = r.number("metallic", 0, 0, 1);
+    m.roughness = r.number("roughness", 0.5, 0, 1);
+  } else if (type == "conductor") {
+    m.type = MaterialType::Conductor;
+    m.color = r.rgb("color", 0, 1).value_or(Vec3d{0.95, 0.93, 0.88});
+    m.roughness = r.number("roughness", 0, 0, 1);
+  } else if (type == "dielectric") {
+    m.type = MaterialType::Dielectric;
+    m.color = r.rgb("color", 0, 1).value_or(Vec3d{1, 1, 1});
+    m.ior = r.number("ior", 1.5, 1.0001, 4);
+  } else {
+    m.type = MaterialType::Emissive;
+    m.color = {0, 0, 0};
+    m.emission = r.rgb("radiance", 0).value_or(Vec3d{1, 1, 1});
+    m.twoSided = r.boolean("two_sided", false);
+  }
+  r.finish();
+  return m;
+}
+
+LightDesc parseLight(ObjectReader r, const fs::path& dir) {
+  LightDesc l;
+  l.where = r.path();
+  if (!r.has("type")) r.fail(r.at("type"), "required key is missing");
+  const std::string type = r.choice("type", "", {"point", "spot", "directional", "environment"});
+  auto direction = [&](const char* key) {
+    const auto d = r.vec3(key);
+    if (!d) r.fail(r.at(key), "required key is missing");
+    if (length(*d) == 0) r.fail(r.at(key), "the direction is zero");
+    return normalize(*d);
+  };
+  if (type == "point" || type == "spot") {
+    l.type = type == "point" ? LightType::Point : LightType::Spot;
+    l.position = r.vec3("position").value_or(l.position);
+    l.intensity = r.rgb("intensity").value_or(l.intensity);
+    if (l.type == LightType::Spot) {
+      l.direction = direction("direction");
+      l.outerAngle = r.number("outer_angle", 45, 0.01, 90);
+      l.innerAngle = r.number("inner_angle", 0, 0, l.outerAngle);
+    }
+  } else if (type == "directional") {
+    l.type = LightType::Directional;
+    l.direction = direction("direction");
+    l.irradiance = r.rgb("irradiance").value_or(l.irradiance);
+  } else {
+    l.type = LightType::Environment;
+    l.radiance = r.rgb("radiance").value_or(l.radiance);
+    const std::string file = r.string("file", "");
+    if (r.has("file") && file.empty()) r.fail(r.at("file"), "empty file name");
+    if (!file.empty()) l.file = fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
+  }
+  r.finish();
+  return l;
+}
+
+// A material reference by name; checked against the scene's materials once all are read.
+std::string materialRef(ObjectReader& r, std::string& where) {
+  where = r.at("material");
+  const std::string name = r.string("material", "");
+  if (r.has("material") && name.empty()) r.fail(where, "empty material name");
+  return name;
 }
 
 }  // namespace
@@ -145,6 +304,8 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
       in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
                                       "' (known: " + integratorList() + ")");
     scene.settings.spp = in.integer("spp", scene.settings.spp, 1, 1 << 20);
+    scene.settings.maxDepth = in.integer("max_depth", scene.settings.maxDepth, 1, 1000);
+    scene.settings.aoDistance = in.number("ao_distance", scene.settings.aoDistance, 1e-30, 1e30);
     scene.settings.seed = uint64_t(in.integer("seed", 0, 0, 1 << 30));
     in.finish();
   }
@@ -153,6 +314,39 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     std::string error;
     if (!parseIntersector(j->get<std::string>(), scene.settings.intersector, error))
       r.fail("/intersector", error);
+  }
+  if (const Json* j = r.get("meshes")) {
+    if (!j->is_array()) r.fail("/meshes", std::string("expected an array, found ") + typeName(*j));
+    for (size_t i = 0; i < j->size(); ++i) {
+      MeshDesc m;
+      m.where = "/meshes/" + std::to_string(i);
+      ObjectReader mr((*j)[i], m.where, path);
+      const bool hasFile = mr.has("file"), hasShape = mr.has("shape");
+      if (hasFile == hasShape) mr.fail(m.where, "a mesh needs exactly one of \"file\" (glTF) and \"shape\"");
+      if (hasFile) {
+        const std::string file = mr.string("file", "");
+        if (file.empty()) mr.fail(mr.at("file"), "empty file name");
+        m.file = fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
+      } else {
+        m.shape = mr.choice("shape", "", {"sphere", "quad"}) == "sphere" ? MeshShape::Sphere : MeshShape::Quad;
+      }
+      if (const Json* t = mr.get("transform")) m.transform = parseTransform(ObjectReader(*t, mr.at("transform"), path));
+      m.material = materialRef(mr, m.materialWhere);
+      mr.finish();
+      scene.meshes.push_back(std::move(m));
+    }
+  }
+  if (const Json* j = r.get("materials")) {
+    if (!j->is_object()) r.fail("/materials", std::string("expected an object of named materials, found ") + typeName(*j));
+    for (auto it = j->begin(); it != j->end(); ++it) {
+      if (it.key().empty()) r.fail("/materials", "a material needs a non-empty name");
+      scene.materials[it.key()] = parseMaterial(ObjectReader(it.value(), "/materials/" + it.key(), path));
+    }
+  }
+  if (const Json* j = r.get("lights")) {
+    if (!j->is_array()) r.fail("/lights", std::string("expected an array, found ") + typeName(*j));
+    for (size_t i = 0; i < j->size(); ++i)
+      scene.lights.push_back(parseLight(ObjectReader((*j)[i], "/lights/" + std::to_string(i), path), dir));
   }
   if (const Json* j = r.get("volumes")) {
     if (!j->is_array()) r.fail("/volumes", std::string("expected an array, found ") + typeName(*j));
@@ -209,6 +403,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
       v.spacing = vr.vec3("spacing");
       if (v.spacing && !(v.spacing->x > 0 && v.spacing->y > 0 && v.spacing->z > 0))
         vr.fail(vr.at("spacing"), "spacing must be positive");
+      if (const Json* t = vr.get("transform")) v.transform = parseTransform(ObjectReader(*t, vr.at("transform"), path));
       const Json& isos = vr.require("isosurfaces");
       if (!isos.is_array() || isos.empty())
         vr.fail(vr.at("isosurfaces"), "expected a non-empty array of iso-surfaces");
@@ -216,7 +411,9 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
         ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path);
         IsoSurfaceDesc iso;
         iso.value = ir.toNumber(ir.require("value"), ir.at("value"));
-        iso.color = ir.vec3("color");
+        iso.color = ir.rgb("color", 0, 1);
+        iso.material = materialRef(ir, iso.materialWhere);
+        iso.solidAbove = ir.choice("inside", "above", {"above", "below"}) == "above";
         ir.finish();
         v.isosurfaces.push_back(iso);
       }
@@ -225,6 +422,13 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     }
   }
   r.finish();
+  auto checkMaterial = [&](const std::string& name, const std::string& where) {
+    if (!name.empty() && !scene.materials.count(name))
+      throw InputError(path, where, "undefined material '" + name + "'");
+  };
+  for (const MeshDesc& m : scene.meshes) checkMaterial(m.material, m.materialWhere);
+  for (const VolumeDesc& v : scene.volumes)
+    for (const IsoSurfaceDesc& iso : v.isosurfaces) checkMaterial(iso.material, iso.materialWhere);
   return scene;
 }
 

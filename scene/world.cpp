@@ -1,6 +1,7 @@
 #include "scene/world.h"
 
 #include <chrono>
+#include <cmath>
 #include <stdexcept>
 
 #include "volume/input_error.h"
@@ -12,11 +13,24 @@ double secondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-// Distinct colours for nested shells in the eyelight view.
-Vec3f paletteColor(size_t i) {
-  static const Vec3f palette[] = {{0.85f, 0.85f, 0.85f}, {0.9f, 0.55f, 0.35f}, {0.4f, 0.65f, 0.9f},
-                                  {0.55f, 0.85f, 0.45f}, {0.9f, 0.8f, 0.35f}, {0.75f, 0.5f, 0.85f}};
-  return palette[i % (sizeof(palette) / sizeof(palette[0]))];
+// pbrt's gamma(n): a bound on the relative error of n float operations.
+constexpr float gamma(int n) {
+  constexpr float eps = 0x1p-24f;
+  return n * eps / (1 - n * eps);
+}
+
+Vec3f absv(const Vec3f& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
+
+const char* shapeName(MeshShape s) { return s == MeshShape::Sphere ? "sphere" : "quad"; }
+
+// The triangles of a mesh in world space, three vertices each (for area lights).
+void worldTriangles(const TriangleMesh& m, const Transform& t, bool identity, std::vector<Vec3f>& tris,
+                    std::vector<Vec2f>& uvs) {
+  for (size_t i = 0; i < m.indices.size(); ++i) {
+    const Vec3f p = m.positions[m.indices[i]];
+    tris.push_back(identity ? p : Vec3f(t.point(Vec3d(p))));
+    if (!m.uvs.empty()) uvs.push_back(m.uvs[m.indices[i]]);
+  }
 }
 
 }  // namespace
@@ -30,47 +44,348 @@ Grid loadVolume(const VolumeDesc& desc) {
 }
 
 World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
-  const auto loadStart = std::chrono::steady_clock::now();
-  for (const VolumeDesc& desc : scene.volumes) {
-    VolumeInfo info;
-    info.name = desc.field ? "procedural" : desc.file;
-    info.grid = std::make_unique<Grid>(loadVolume(desc));
-    m_volumes.push_back(std::move(info));
-  }
-  m_loadSeconds = secondsSince(loadStart);
-
-  const auto buildStart = std::chrono::steady_clock::now();
+  m_camera = scene.camera;
+  Material fallback;
+  fallback.name = "default";
+  m_materials.push_back(fallback);
   m_device = rtcNewDevice(nullptr);
   if (!m_device) throw std::runtime_error("cannot create the Embree device");
   m_scene = rtcNewScene(m_device);
   rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
+  try {
+    loadMeshes(scene);
+    buildVolumes(scene, intersector);
+    buildLights(scene);
+    const auto commitStart = std::chrono::steady_clock::now();
+    for (RTCScene sub : m_subScenes) rtcCommitScene(sub);
+    rtcCommitScene(m_scene);
+    m_buildSeconds += secondsSince(commitStart);
+  } catch (...) {
+    release();
+    throw;
+  }
+}
+
+World::~World() { release(); }
+
+void World::release() {
+  for (RTCScene sub : m_subScenes) rtcReleaseScene(sub);
+  m_subScenes.clear();
+  if (m_scene) rtcReleaseScene(m_scene);
+  if (m_device) rtcReleaseDevice(m_device);
+  m_scene = nullptr;
+  m_device = nullptr;
+}
+
+unsigned World::attach(RTCScene scene, RTCGeometry geometry, std::vector<GeometryRecord>& table,
+                       const GeometryRecord& record) {
+  rtcCommitGeometry(geometry);
+  const unsigned id = rtcAttachGeometry(scene, geometry);
+  rtcReleaseGeometry(geometry);
+  if (table.size() <= id) table.resize(id + 1);
+  table[id] = record;
+  return id;
+}
+
+int World::materialFor(const SceneDesc& scene, const std::string& name) {
+  for (size_t i = 1; i < m_materials.size(); ++i)
+    if (m_materials[i].name == name) return int(i);
+  const MaterialDesc& d = scene.materials.at(name);
+  Material m;
+  m.name = name;
+  m.type = d.type;
+  m.color = Vec3f(d.color);
+  m.metallic = float(d.metallic);
+  m.roughness = float(d.roughness);
+  m.ior = float(d.ior);
+  m.emission = Vec3f(d.emission);
+  m.twoSided = d.twoSided;
+  m_materials.push_back(m);
+  return int(m_materials.size() - 1);
+}
+
+// Decodes a glTF texture the first time a used material needs it.
+int World::textureFor(size_t model, const GltfTextureRef& ref, bool srgb) {
+  if (ref.texture < 0) return -1;
+  for (size_t i = 0; i < m_textureKeys.size(); ++i)
+    if (m_textureKeys[i] == std::make_tuple(model, ref.texture, srgb)) return int(i);
+  const GltfModel& g = m_models[model];
+  const GltfTexture& t = g.textures[ref.texture];
+  const std::string at = "/textures/" + std::to_string(ref.texture);
+  if (t.image < 0 || size_t(t.image) >= g.images.size())
+    throw InputError(g.path, at + "/source", "image " + std::to_string(t.image) + " does not exist");
+  const GltfImage& image = g.images[t.image];
+  if (image.encoded.empty()) throw InputError(g.path, "/images/" + std::to_string(t.image), "image has no data");
+  m_textures.push_back(Texture::decode(image.encoded, g.path + ": " + image.name, srgb, t.wrapS, t.wrapT, t.nearest));
+  m_textureKeys.emplace_back(model, ref.texture, srgb);
+  return int(m_textures.size() - 1);
+}
+
+int World::gltfMaterial(size_t model, int index) {
+  if (index < 0) return 0;
+  int& slot = m_modelMaterials[model][index];
+  if (slot >= 0) return slot;
+  const GltfMaterial& g = m_models[model].materials[index];
+  Material m;
+  m.name = g.name.empty() ? m_models[model].path + " material " + std::to_string(index) : g.name;
+  m.type = MaterialType::MetallicRoughness;
+  m.color = g.baseColor;
+  m.metallic = g.metallic;
+  m.roughness = g.roughness;
+  m.emission = g.emissive;
+  m.twoSided = g.doubleSided;
+  m.normalScale = g.normalScale;
+  m.colorTexture = textureFor(model, g.baseColorTexture, true);
+  m.metallicRoughnessTexture = textureFor(model, g.metallicRoughnessTexture, false);
+  m.normalTexture = textureFor(model, g.normalTexture, false);
+  m.emissionTexture = textureFor(model, g.emissiveTexture, true);
+  m_materials.push_back(m);
+  slot = int(m_materials.size() - 1);
+  return slot;
+}
+
+void World::loadMeshes(const SceneDesc& scene) {
+  std::vector<PendingAreaLight>& pending = m_pendingAreaLights;
+  for (size_t d = 0; d < scene.meshes.size(); ++d) {
+    const MeshDesc& desc = scene.meshes[d];
+    const auto loadStart = std::chrono::steady_clock::now();
+    GltfModel model;
+    if (desc.shape != MeshShape::None) {
+      model.path = shapeName(desc.shape);
+      model.meshes.push_back({desc.shape == MeshShape::Sphere ? makeSphereMesh() : makeQuadMesh()});
+      model.meshNames.push_back(model.path);
+      model.instances.push_back({0, Transform(), "shape"});
+    } else {
+      model = loadGltf(desc.file);
+      for (const std::string& w : model.warnings) m_warnings.push_back(desc.file + ": " + w);
+    }
+    m_loadSeconds += secondsSince(loadStart);
+    const auto buildStart = std::chrono::steady_clock::now();
+    const size_t modelIndex = m_models.size();
+    m_models.push_back(std::move(model));
+    const GltfModel& g = m_models.back();
+    m_modelMaterials.emplace_back(g.materials.size(), -1);
+
+    MeshInfo info;
+    info.name = desc.shape != MeshShape::None ? g.path : desc.file;
+    info.meshes = g.meshes.size();
+    info.instances = g.instances.size();
+    info.cameras = g.cameras.size();
+    info.lights = g.lights.size();
+    info.materials = g.materials.size();
+    info.textures = g.textures.size();
+    info.images = g.images.size();
+    std::vector<int> uses(g.meshes.size(), 0);
+    for (const GltfInstance& inst : g.instances) ++uses[inst.mesh];
+    std::vector<RTCScene> shared(g.meshes.size(), nullptr);
+    std::vector<std::vector<const TriangleMesh*>> stored(g.meshes.size());
+    for (size_t m = 0; m < g.meshes.size(); ++m)
+      for (const TriangleMesh& prim : g.meshes[m]) info.uniqueTriangles += uses[m] ? prim.triangleCount() : 0;
+
+    auto materialOf = [&](const TriangleMesh& prim) {
+      return desc.material.empty() ? gltfMaterial(modelIndex, prim.material) : materialFor(scene, desc.material);
+    };
+    auto createTriangles = [&](const TriangleMesh& mesh) {
+      RTCGeometry geometry = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_TRIANGLE);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                            3 * sizeof(float), mesh.positions.size()));
+      for (size_t i = 0; i < mesh.positions.size(); ++i) {
+        v[3 * i] = mesh.positions[i].x; v[3 * i + 1] = mesh.positions[i].y; v[3 * i + 2] = mesh.positions[i].z;
+      }
+      auto* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                                 3 * sizeof(unsigned), mesh.triangleCount()));
+      std::copy(mesh.indices.begin(), mesh.indices.end(), idx);
+      return geometry;
+    };
+
+    for (const GltfInstance& inst : g.instances) {
+      const Transform toWorld = desc.transform * inst.toFile;
+      const std::vector<TriangleMesh>& prims = g.meshes[inst.mesh];
+      info.triangles += [&] { size_t n = 0; for (auto& p : prims) n += p.triangleCount(); return n; }();
+      if (uses[inst.mesh] == 1) {
+        // Used once: bake into world space (a flatter BVH, and error bounds in world space).
+        for (const TriangleMesh& prim : prims) {
+          auto baked = std::make_unique<TriangleMesh>(prim);
+          for (Vec3f& p : baked->positions) p = Vec3f(toWorld.point(Vec3d(p)));
+          for (Vec3f& n : baked->normals)
+            if (length(n) > 0) n = Vec3f(normalize(toWorld.normal(Vec3d(n))));
+          for (const Vec3f& p : baked->positions)
+            if (!isFinite(p)) throw InputError(desc.file.empty() ? scene.path : desc.file, inst.node, "transformed vertex is not finite");
+          GeometryRecord rec;
+          rec.mesh = baked.get();
+          rec.material = materialOf(prim);
+          rec.meshDesc = int(d);
+          if (m_materials[rec.material].emits()) {
+            rec.light = int(pending.size());
+            pending.push_back({});
+            worldTriangles(*baked, Transform(), true, pending.back().triangles, pending.back().uvs);
+            pending.back().material = rec.material;
+          }
+          attach(m_scene, createTriangles(*baked), m_top, rec);
+          m_meshStore.push_back(std::move(baked));
+        }
+        continue;
+      }
+      // Used by several nodes: one shared object-space scene, one Embree instance per node.
+      if (!shared[inst.mesh]) {
+        shared[inst.mesh] = rtcNewScene(m_device);
+        m_subScenes.push_back(shared[inst.mesh]);
+        for (const TriangleMesh& prim : prims) {
+          m_meshStore.push_back(std::make_unique<TriangleMesh>(prim));
+          stored[inst.mesh].push_back(m_meshStore.back().get());
+          RTCGeometry geometry = createTriangles(prim);
+          rtcCommitGeometry(geometry);
+          rtcAttachGeometry(shared[inst.mesh], geometry);
+          rtcReleaseGeometry(geometry);
+        }
+      }
+      std::vector<GeometryRecord> records;
+      for (size_t k = 0; k < prims.size(); ++k) {
+        GeometryRecord rec;
+        rec.mesh = stored[inst.mesh][k];
+        rec.material = materialOf(prims[k]);
+        rec.meshDesc = int(d);
+        rec.toWorld = toWorld;
+        rec.identity = false;
+        if (m_materials[rec.material].emits()) {
+          rec.light = int(pending.size());
+          pending.push_back({});
+          worldTriangles(prims[k], toWorld, false, pending.back().triangles, pending.back().uvs);
+          pending.back().material = rec.material;
+        }
+        records.push_back(rec);
+      }
+      RTCGeometry instance = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
+      rtcSetGeometryInstancedScene(instance, shared[inst.mesh]);
+      float xfm[12];
+      toWorld.toColumnMajor(xfm);
+      rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, xfm);
+      GeometryRecord top;
+      top.instance = int(m_instanceRecords.size());
+      top.meshDesc = int(d);
+      m_instanceRecords.push_back(std::move(records));
+      attach(m_scene, instance, m_top, top);
+      ++info.embreeInstances;
+    }
+    m_meshInfo.push_back(info);
+    m_buildSeconds += secondsSince(buildStart);
+  }
+}
+
+void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector) {
   for (size_t v = 0; v < scene.volumes.size(); ++v) {
-    m_volumes[v].bricks = std::make_unique<BrickGrid>(*m_volumes[v].grid);
-    for (const IsoSurfaceDesc& isoDesc : scene.volumes[v].isosurfaces) {
+    const VolumeDesc& desc = scene.volumes[v];
+    const auto loadStart = std::chrono::steady_clock::now();
+    VolumeInfo info;
+    info.name = desc.field ? "procedural" : desc.file;
+    info.grid = std::make_unique<Grid>(loadVolume(desc));
+    info.transform = desc.transform;
+    m_loadSeconds += secondsSince(loadStart);
+
+    const auto buildStart = std::chrono::steady_clock::now();
+    info.bricks = std::make_unique<BrickGrid>(*info.grid);
+    m_volumes.push_back(std::move(info));
+    const VolumeInfo& vol = m_volumes.back();
+    const bool instanced = !desc.transform.isIdentity();
+    RTCScene target = m_scene;
+    std::vector<GeometryRecord> records;
+    if (instanced) {
+      target = rtcNewScene(m_device);
+      rtcSetSceneFlags(target, RTC_SCENE_FLAG_ROBUST);
+      m_subScenes.push_back(target);
+    }
+    for (size_t k = 0; k < desc.isosurfaces.size(); ++k) {
+      const IsoSurfaceDesc& isoDesc = desc.isosurfaces[k];
       SurfaceInfo s;
       s.volume = int(v);
       s.iso = isoDesc.value;
-      s.color = isoDesc.color ? Vec3f(*isoDesc.color) : paletteColor(m_surfaces.size());
-      s.surface = std::make_unique<IsoSurface>(*m_volumes[v].grid, *m_volumes[v].bricks,
-                                               isoDesc.value, intersector);
+      s.solidAbove = isoDesc.solidAbove;
+      if (!isoDesc.material.empty()) {
+        s.material = materialFor(scene, isoDesc.material);
+      } else if (isoDesc.color) {
+        // A colour without a material is shorthand for a diffuse material of that colour.
+        Material m;
+        m.name = desc.where + "/isosurfaces/" + std::to_string(k) + "/color";
+        m.color = Vec3f(*isoDesc.color);
+        m_materials.push_back(m);
+        s.material = int(m_materials.size() - 1);
+      }
+      s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector);
       // A surface with no active brick holds no primitive: nothing for Embree to build.
       if (!s.surface->activeBricks().empty()) {
-        RTCGeometry geometry = s.surface->createGeometry(m_device);
-        const unsigned id = rtcAttachGeometry(m_scene, geometry);
-        rtcReleaseGeometry(geometry);
-        if (m_geometryToSurface.size() <= id) m_geometryToSurface.resize(id + 1, -1);
-        m_geometryToSurface[id] = int(m_surfaces.size());
+        GeometryRecord rec;
+        rec.surface = int(m_surfaces.size());
+        rec.material = s.material;
+        rec.toWorld = desc.transform;
+        rec.identity = !instanced;
+        attach(target, s.surface->createGeometry(m_device), instanced ? records : m_top, rec);
       }
       m_surfaces.push_back(std::move(s));
     }
+    if (instanced) {
+      RTCGeometry instance = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
+      rtcSetGeometryInstancedScene(instance, target);
+      float xfm[12];
+      desc.transform.toColumnMajor(xfm);
+      rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, xfm);
+      GeometryRecord top;
+      top.instance = int(m_instanceRecords.size());
+      m_instanceRecords.push_back(std::move(records));
+      attach(m_scene, instance, m_top, top);
+    }
+    m_buildSeconds += secondsSince(buildStart);
   }
-  rtcCommitScene(m_scene);
-  m_buildSeconds = secondsSince(buildStart);
 }
 
-World::~World() {
-  if (m_scene) rtcReleaseScene(m_scene);
-  if (m_device) rtcReleaseDevice(m_device);
+void World::buildLights(const SceneDesc& scene) {
+  // Area lights first, so that a triangle record's light index is its place in m_lights.
+  for (PendingAreaLight& p : m_pendingAreaLights)
+    m_lights.push_back(Light::area(std::move(p.triangles), std::move(p.uvs), m_materials[p.material], m_textures));
+  m_pendingAreaLights.clear();
+  auto add = [&](const LightDesc& d) {
+    const Texture* image = nullptr;
+    if (d.type == LightType::Environment && !d.file.empty()) {
+      const auto start = std::chrono::steady_clock::now();
+      m_environmentImages.push_back(std::make_unique<Texture>(Texture::loadFile(d.file)));
+      image = m_environmentImages.back().get();
+      m_loadSeconds += secondsSince(start);
+    }
+    if (d.type == LightType::Environment) m_environmentLights.push_back(int(m_lights.size()));
+    m_lights.push_back(Light::fromDesc(d, image));
+  };
+  for (const LightDesc& d : scene.lights) add(d);
+  int cameraIndex = 0;
+  bool cameraFound = scene.camera.gltfCamera.empty();
+  std::string cameraNames;
+  for (size_t m = 0; m < m_models.size(); ++m) {
+    const Transform& t = scene.meshes[m].transform;
+    for (LightDesc d : m_models[m].lights) {
+      d.position = t.point(d.position);
+      d.direction = normalize(t.vector(d.direction));
+      add(d);
+    }
+    for (const GltfCamera& c : m_models[m].cameras) {
+      const std::string& want = scene.camera.gltfCamera;
+      cameraNames += (cameraNames.empty() ? "" : ", ") + c.name;
+      if (!cameraFound && (want == c.name || want == "#" + std::to_string(cameraIndex))) {
+        m_camera.position = t.point(c.desc.position);
+        m_camera.lookAt = m_camera.position + normalize(t.vector(c.desc.lookAt - c.desc.position));
+        m_camera.up = normalize(t.vector(c.desc.up));
+        m_camera.fov = c.desc.fov;
+        cameraFound = true;
+      }
+      ++cameraIndex;
+    }
+  }
+  if (!cameraFound)
+    throw InputError(scene.path, "/camera/gltf_camera",
+                     "no glTF camera '" + scene.camera.gltfCamera + "' (cameras: " +
+                         (cameraNames.empty() ? "none" : cameraNames) + "; \"#N\" picks the N-th)");
+}
+
+const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
+  if (hit.instID[0] != RTC_INVALID_GEOMETRY_ID) return m_instanceRecords[m_top[hit.instID[0]].instance][hit.geomID];
+  return m_top[hit.geomID];
 }
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
@@ -82,16 +397,82 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   rh.ray.tfar = ray.tfar;
   rh.ray.mask = 0xffffffff;
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(m_scene, &context.embree, &rh);
   stats.cellsVisited += context.stats.cellsVisited;
   stats.cellsSolved += context.stats.cellsSolved;
   stats.rootsRefined += context.stats.rootsRefined;
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  const GeometryRecord& rec = recordOf(rh.hit);
+  hit = Hit();
   hit.t = rh.ray.tfar;
-  hit.tError = context.tError;
-  hit.position = ray.org + ray.dir * hit.t;
-  hit.normal = Vec3f{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
-  hit.surface = m_geometryToSurface[rh.hit.geomID];
+  hit.material = rec.material;
+  if (!rec.mesh) {
+    // Iso-surface: the intersector's bound on t becomes a bound on the position.
+    hit.surface = rec.surface;
+    hit.tError = context.tError;
+    hit.position = ray.org + ray.dir * hit.t;
+    hit.pError = absv(ray.dir) * hit.tError + (absv(ray.org) + absv(ray.dir * hit.t)) * gamma(3);
+    Vec3d n{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};  // object space for an instance
+    if (!rec.identity) n = rec.toWorld.normal(n);
+    hit.normal = Vec3f(normalize(n));
+    if (!m_surfaces[rec.surface].solidAbove) hit.normal = -hit.normal;
+    hit.shading = hit.normal;
+    return true;
+  }
+  // Triangle: position from barycentrics with pbrt-v4's bound (Pharr et al., 6.8.5).
+  const TriangleMesh& m = *rec.mesh;
+  const unsigned prim = rh.hit.primID;
+  const uint32_t i0 = m.indices[3 * prim], i1 = m.indices[3 * prim + 1], i2 = m.indices[3 * prim + 2];
+  const float b1 = rh.hit.u, b2 = rh.hit.v, b0 = 1 - b1 - b2;
+  const Vec3f p0 = m.positions[i0], p1 = m.positions[i1], p2 = m.positions[i2];
+  const Vec3f pObj = p0 * b0 + p1 * b1 + p2 * b2;
+  const Vec3f errObj = (absv(p0 * b0) + absv(p1 * b1) + absv(p2 * b2)) * gamma(7);
+  Vec3f ng = cross(p1 - p0, p2 - p0);
+  hit.mesh = rec.meshDesc;
+  hit.light = rec.light;
+  hit.triangle = rec.light >= 0 ? int(prim) : -1;
+  hit.b1 = b1;
+  hit.b2 = b2;
+  Vec3f ns = m.normals.empty() ? Vec3f{0, 0, 0} : m.normals[i0] * b0 + m.normals[i1] * b1 + m.normals[i2] * b2;
+  Vec2f uv{b1, b2};
+  Vec3f dpdu, dpdv;
+  if (!m.uvs.empty()) {
+    const Vec2f t0 = m.uvs[i0], t1 = m.uvs[i1], t2 = m.uvs[i2];
+    uv = {t0.x * b0 + t1.x * b1 + t2.x * b2, t0.y * b0 + t1.y * b1 + t2.y * b2};
+    const float du1 = t1.x - t0.x, dv1 = t1.y - t0.y, du2 = t2.x - t0.x, dv2 = t2.y - t0.y;
+    const float det = du1 * dv2 - dv1 * du2;
+    if (std::fabs(det) > 1e-12f) {
+      dpdu = ((p1 - p0) * dv2 - (p2 - p0) * dv1) / det;
+      dpdv = ((p2 - p0) * du1 - (p1 - p0) * du2) / det;
+    }
+  }
+  if (rec.identity) {
+    hit.position = pObj;
+    hit.pError = errObj;
+  } else {
+    const Transform& t = rec.toWorld;
+    hit.position = Vec3f(t.point(Vec3d(pObj)));
+    const Vec3d rows = t.absRowSums(), trans{t.m[0][3], t.m[1][3], t.m[2][3]};
+    const float e = std::max({errObj.x, errObj.y, errObj.z});
+    const Vec3f pAbs = absv(pObj);
+    const float pMax = std::max({pAbs.x, pAbs.y, pAbs.z});
+    hit.pError = Vec3f(rows * double(e)) + (Vec3f(rows * double(pMax)) + absv(Vec3f(trans)) + absv(hit.position)) * gamma(3);
+    ng = Vec3f(t.normal(Vec3d(ng)));
+    if (length(ns) > 0) ns = Vec3f(t.normal(Vec3d(ns)));
+    dpdu = Vec3f(t.vector(Vec3d(dpdu)));
+    dpdv = Vec3f(t.vector(Vec3d(dpdv)));
+  }
+  const float ngLen = length(ng);
+  hit.normal = ngLen > 0 ? ng / ngLen : -ray.dir;
+  const float nsLen = length(ns);
+  hit.shading = nsLen > 0 && std::isfinite(nsLen) ? ns / nsLen : hit.normal;
+  // The geometric normal follows the shading normals' side (pbrt's convention): vertex
+  // normals say which way is out even where the winding disagrees.
+  if (dot(hit.normal, hit.shading) < 0) hit.normal = -hit.normal;
+  hit.uv = uv;
+  hit.dpdu = dpdu;
+  hit.dpdv = dpdv;
   return true;
 }
 
@@ -107,6 +488,51 @@ bool World::occluded(const Ray& ray, TraversalStats& stats) const {
   stats.cellsVisited += context.stats.cellsVisited;
   stats.cellsSolved += context.stats.cellsSolved;
   return r.tfar < 0;
+}
+
+Vec3f World::albedo(const Hit& hit) const {
+  const Material& m = m_materials[hit.material];
+  Vec3f c = m.color;
+  if (m.colorTexture >= 0) c = c * m_textures[m.colorTexture].lookup(hit.uv.x, hit.uv.y).rgb();
+  return c;
+}
+
+Bsdf World::bsdf(const Hit& hit) const {
+  const Material& m = m_materials[hit.material];
+  float metallic = m.metallic, roughness = m.roughness;
+  if (m.metallicRoughnessTexture >= 0) {
+    // glTF: roughness in green, metalness in blue, both linear.
+    const Vec4f mr = m_textures[m.metallicRoughnessTexture].lookup(hit.uv.x, hit.uv.y);
+    roughness *= mr.y;
+    metallic *= mr.z;
+  }
+  Vec3f n = hit.shading;
+  if (m.normalTexture >= 0 && length(hit.dpdu) > 0) {
+    // Tangent space of the texture: x along +u, y towards the image top (-v), z the normal.
+    const Vec4f c = m_textures[m.normalTexture].lookup(hit.uv.x, hit.uv.y);
+    const Vec3f local{(2 * c.x - 1) * m.normalScale, (2 * c.y - 1) * m.normalScale, 2 * c.z - 1};
+    const Vec3f t = normalize(hit.dpdu - n * dot(n, hit.dpdu));
+    Vec3f b = cross(n, t);
+    if (dot(b, hit.dpdv) > 0) b = -b;
+    const Vec3f mapped = t * local.x + b * local.y + n * local.z;
+    if (length(mapped) > 0 && std::isfinite(length(mapped))) n = normalize(mapped);
+  }
+  return Bsdf(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior);
+}
+
+Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
+  const Material& m = m_materials[hit.material];
+  if (!m.emits()) return {0, 0, 0};
+  if (hit.light >= 0) return m_lights[hit.light].emitted(hit.triangle, hit.b1, hit.b2, wo);
+  // Emissive iso-surfaces: front side is out of the solid.
+  if (!m.twoSided && dot(wo, hit.normal) <= 0) return {0, 0, 0};
+  return m.emission;
+}
+
+Vec3f World::environment(const Vec3f& dir) const {
+  Vec3f sum{0, 0, 0};
+  for (int i : m_environmentLights) sum += m_lights[i].environment(dir);
+  return sum;
 }
 
 }  // namespace iso

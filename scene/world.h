@@ -1,6 +1,8 @@
 #pragma once
-// The loaded scene: grids, their brick ranges and iso-surfaces, and one Embree scene that
-// holds one user geometry per iso-surface.
+// The loaded scene: glTF meshes and built-in shapes, grids with their brick ranges and
+// iso-surfaces, materials, textures and lights, in one Embree scene. Meshes used once are
+// baked into world space; a glTF mesh used by several nodes and a transformed volume are
+// Embree instances. Only what the scene uses is loaded or built.
 #include <embree3/rtcore.h>
 
 #include <memory>
@@ -8,6 +10,9 @@
 #include <vector>
 
 #include "scene/camera.h"
+#include "scene/gltf.h"
+#include "scene/light.h"
+#include "scene/material.h"
 #include "scene/scene.h"
 #include "volume/iso_surface.h"
 
@@ -15,16 +20,26 @@ namespace iso {
 
 struct Hit {
   float t = 0;
-  float tError = 0;
+  float tError = 0;   // |t - true t| <= tError (iso-surfaces; 0 for triangles)
   Vec3f position;
-  Vec3f normal;   // unit, world space
-  int surface = -1;  // index into World::surfaces()
+  Vec3f pError;       // per-axis bound on the error of `position`
+  Vec3f normal;       // geometric, unit, world space, pointing out of the solid
+  Vec3f shading;      // interpolated shading normal (before normal mapping), unit
+  Vec3f dpdu, dpdv;   // surface tangents along the texture coordinates (0 if none)
+  Vec2f uv;
+  int material = 0;   // index into World::materials()
+  int surface = -1;   // iso-surface index, or -1 for a triangle
+  int mesh = -1;      // scene mesh index, or -1 for an iso-surface
+  int light = -1;     // area light index of an emissive triangle, or -1
+  int triangle = -1;  // triangle index inside that area light
+  float b1 = 0, b2 = 0;  // barycentrics of a triangle hit
 };
 
 struct SurfaceInfo {
   int volume = 0;
   double iso = 0;
-  Vec3f color{0.8f, 0.8f, 0.8f};
+  int material = 0;
+  bool solidAbove = true;
   std::unique_ptr<IsoSurface> surface;
 };
 
@@ -32,11 +47,22 @@ struct VolumeInfo {
   std::string name;  // file or procedural field
   std::unique_ptr<Grid> grid;
   std::unique_ptr<BrickGrid> bricks;
+  Transform transform;
+};
+
+struct MeshInfo {
+  std::string name;            // file or built-in shape
+  size_t meshes = 0;           // glTF meshes (or 1 for a shape)
+  size_t uniqueTriangles = 0;  // stored
+  size_t triangles = 0;        // in the world, counting every instance
+  size_t instances = 0;        // placements of glTF meshes (nodes with a mesh)
+  size_t embreeInstances = 0;  // of those, traced as Embree instances (mesh used more than once)
+  size_t cameras = 0, lights = 0, materials = 0, textures = 0, images = 0;
 };
 
 class World {
  public:
-  // Loads every volume of the scene and builds the Embree scene with `intersector`.
+  // Loads and builds everything the scene needs for intersector `intersector`.
   World(const SceneDesc& scene, const IntersectorSpec& intersector);
   ~World();
   World(const World&) = delete;
@@ -45,17 +71,74 @@ class World {
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const;
   bool occluded(const Ray& ray, TraversalStats& stats) const;
 
+  // Shading at a hit: the BSDF (textures and normal map applied), the base colour, and the
+  // radiance emitted towards `wo` (unit, pointing away from the surface).
+  Bsdf bsdf(const Hit& hit) const;
+  Vec3f albedo(const Hit& hit) const;
+  Vec3f emitted(const Hit& hit, const Vec3f& wo) const;
+  // Radiance from the environment lights along `dir` (a ray that escaped).
+  Vec3f environment(const Vec3f& dir) const;
+
+  const CameraDesc& camera() const { return m_camera; }
   const std::vector<VolumeInfo>& volumes() const { return m_volumes; }
   const std::vector<SurfaceInfo>& surfaces() const { return m_surfaces; }
+  const std::vector<MeshInfo>& meshes() const { return m_meshInfo; }
+  const std::vector<Material>& materials() const { return m_materials; }
+  const std::vector<Texture>& textures() const { return m_textures; }
+  const std::vector<Light>& lights() const { return m_lights; }
+  const std::vector<int>& environmentLights() const { return m_environmentLights; }
+  const std::vector<std::string>& warnings() const { return m_warnings; }
   double loadSeconds() const { return m_loadSeconds; }
   double buildSeconds() const { return m_buildSeconds; }
 
  private:
+  struct GeometryRecord {
+    const TriangleMesh* mesh = nullptr;  // null: an iso-surface or an instance
+    int surface = -1;
+    int material = 0;
+    int meshDesc = -1;
+    int light = -1;
+    int instance = -1;  // index into m_instanceRecords for an Embree instance
+    Transform toWorld;  // of the instance (mesh stored in object space)
+    bool identity = true;
+  };
+  struct PendingAreaLight {
+    std::vector<Vec3f> triangles;  // world space, three per triangle
+    std::vector<Vec2f> uvs;
+    int material = 0;
+  };
+
+  void release();
+  void loadMeshes(const SceneDesc& scene);
+  void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector);
+  void buildLights(const SceneDesc& scene);
+  int materialFor(const SceneDesc& scene, const std::string& name);
+  int gltfMaterial(size_t model, int index);
+  int textureFor(size_t model, const GltfTextureRef& ref, bool srgb);
+  unsigned attach(RTCScene scene, RTCGeometry geometry, std::vector<GeometryRecord>& table,
+                  const GeometryRecord& record);
+  const GeometryRecord& recordOf(const RTCHit& hit) const;
+
   RTCDevice m_device = nullptr;
   RTCScene m_scene = nullptr;
+  std::vector<RTCScene> m_subScenes;
+  CameraDesc m_camera;
+  std::vector<GltfModel> m_models;
+  std::vector<std::vector<int>> m_modelMaterials;  // [model][glTF material] -> material, -1 unbuilt
+  std::vector<std::unique_ptr<TriangleMesh>> m_meshStore;
+  std::vector<MeshInfo> m_meshInfo;
   std::vector<VolumeInfo> m_volumes;
   std::vector<SurfaceInfo> m_surfaces;
-  std::vector<int> m_geometryToSurface;
+  std::vector<Material> m_materials;
+  std::vector<Texture> m_textures;
+  std::vector<std::tuple<size_t, int, bool>> m_textureKeys;  // (model, glTF texture, sRGB)
+  std::vector<std::unique_ptr<Texture>> m_environmentImages;
+  std::vector<PendingAreaLight> m_pendingAreaLights;  // become the first lights
+  std::vector<Light> m_lights;
+  std::vector<int> m_environmentLights;
+  std::vector<GeometryRecord> m_top;
+  std::vector<std::vector<GeometryRecord>> m_instanceRecords;
+  std::vector<std::string> m_warnings;
   double m_loadSeconds = 0, m_buildSeconds = 0;
 };
 

@@ -12,7 +12,9 @@ SceneDesc sphereScene(int resolution, double iso) {
   VolumeDesc v;
   v.field = Field::Sphere;
   v.resolution = {resolution, resolution, resolution};
-  v.isosurfaces.push_back({iso, {}});
+  IsoSurfaceDesc surface;
+  surface.value = iso;
+  v.isosurfaces.push_back(surface);
   scene.volumes.push_back(v);
   scene.camera.position = {0.3, 0.2, 4};
   scene.camera.lookAt = {0, 0, 0};

@@ -1,0 +1,81 @@
+#pragma once
+// Lights. Units (radiometric, RGB): point and spot `intensity` in W/sr, directional
+// `irradiance` in W/m^2 on a surface facing the light, environment and emissive surfaces
+// `radiance` in W/(sr m^2). glTF punctual lights are read with candela as W/sr and lux as
+// W/m^2 (no photometric conversion).
+#include <memory>
+#include <vector>
+
+#include "scene/material.h"
+
+namespace iso {
+
+struct LightSample {
+  Vec3f wi;           // unit, from the shading point towards the light
+  Vec3f L;            // radiance (delta lights: the irradiance-like value to use as is)
+  float pdf = 0;      // solid angle density; 1 for delta lights
+  float distance = 0; // to the sampled point; infinity for distant lights
+  bool delta = false;
+};
+
+// A piecewise-constant 1D distribution (for triangle areas and environment rows/columns).
+class Distribution1D {
+ public:
+  Distribution1D() = default;
+  explicit Distribution1D(const std::vector<float>& weights);
+  // Returns the bin; `pdf` is the bin's probability; `remapped` the position inside it in [0, 1).
+  int sample(float u, float& pdf, float& remapped) const;
+  float probability(int bin) const { return m_total > 0 ? m_weights[bin] / m_total : 0; }
+  float total() const { return m_total; }
+  size_t size() const { return m_weights.size(); }
+
+ private:
+  std::vector<float> m_weights;
+  std::vector<double> m_cdf;
+  float m_total = 0;
+};
+
+class Light {
+ public:
+  enum class Kind { Point, Spot, Directional, Environment, Area };
+
+  static Light fromDesc(const LightDesc& desc, const Texture* environmentImage);
+  // Emissive triangles (world space) with their material; `uvs` may be empty.
+  static Light area(std::vector<Vec3f> triangles, std::vector<Vec2f> uvs, const Material& material,
+                    const std::vector<Texture>& textures);
+
+  Kind kind() const { return m_kind; }
+  bool isDelta() const { return m_kind == Kind::Point || m_kind == Kind::Spot || m_kind == Kind::Directional; }
+  bool sample(const Vec3f& p, float u0, float u1, float u2, LightSample& s) const;
+  // Solid-angle density of sample() choosing direction `wi` from `p`: environment (any wi),
+  // area (the point `y` with normal `ny` that the ray reached).
+  float pdfEnvironment(const Vec3f& wi) const;
+  float pdfArea(const Vec3f& p, const Vec3f& y, const Vec3f& ny) const;
+  Vec3f environment(const Vec3f& dir) const;  // radiance arriving from direction -dir... along dir
+  size_t triangleCount() const { return m_triangles.size() / 3; }
+  double area() const { return m_areas.total(); }
+  // The radiance an area light emits at barycentrics of triangle `tri` towards `w` (unit).
+  Vec3f emitted(int tri, float b1, float b2, const Vec3f& w) const;
+
+  // Lat-long mapping of the environment (+y up, the image centre looks along -z).
+  static Vec3f directionFromLatLong(float u, float v);
+  static void latLongFromDirection(const Vec3f& d, float& u, float& v);
+
+ private:
+  Kind m_kind = Kind::Point;
+  Vec3f m_position, m_direction;  // direction: the way the light travels
+  Vec3f m_power;                  // intensity / irradiance / radiance
+  float m_cosInner = 1, m_cosOuter = 0;
+  // Environment image and its sampling distributions (rows, then columns per row).
+  const Texture* m_image = nullptr;
+  Distribution1D m_rows;
+  std::vector<Distribution1D> m_columns;
+  // Area light.
+  std::vector<Vec3f> m_triangles, m_normals;
+  std::vector<Vec2f> m_uvs;
+  Distribution1D m_areas;
+  const Material* m_material = nullptr;
+  const std::vector<Texture>* m_textures = nullptr;
+};
+
+}  // namespace iso

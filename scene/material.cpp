@@ -1,0 +1,203 @@
+#include "scene/material.h"
+
+#include <cmath>
+
+namespace iso {
+
+namespace {
+constexpr float kPi = float(M_PI);
+// Below this roughness^2 a GGX lobe is numerically a spike; conductors switch to a mirror
+// and the glTF material keeps this floor (its spec has no delta lobe).
+constexpr float kMinAlpha = 1e-3f;
+
+Vec3f reflect(const Vec3f& w, const Vec3f& n) { return n * (2 * dot(w, n)) - w; }
+
+Vec3f schlick(const Vec3f& f0, float cosine) {
+  const float m = std::clamp(1 - cosine, 0.f, 1.f), m5 = m * m * m * m * m;
+  return f0 + (Vec3f{1, 1, 1} - f0) * m5;
+}
+}  // namespace
+
+Frame Frame::fromNormal(const Vec3f& n, const Vec3f& hint) {
+  Frame f;
+  f.n = n;
+  Vec3f s = hint - n * dot(n, hint);
+  float len = length(s);
+  if (!(len > 1e-6f)) {
+    // Duff et al. 2017, "Building an Orthonormal Basis, Revisited".
+    const float sign = std::copysign(1.f, n.z), a = -1 / (sign + n.z), b = n.x * n.y * a;
+    s = {1 + sign * n.x * n.x * a, sign * b, -sign * n.x};
+    len = length(s);
+  }
+  f.s = s / len;
+  f.t = cross(n, f.s);
+  return f;
+}
+
+Vec3f sampleCosineHemisphere(float u0, float u1) {
+  const float r = std::sqrt(u0), phi = 2 * kPi * u1;
+  return {r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.f, 1 - u0))};
+}
+
+Vec3f sampleUniformSphere(float u0, float u1) {
+  const float z = 1 - 2 * u0, r = std::sqrt(std::max(0.f, 1 - z * z)), phi = 2 * kPi * u1;
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+float fresnelDielectric(float cosI, float eta) {
+  if (cosI < 0) {
+    eta = 1 / eta;
+    cosI = -cosI;
+  }
+  const float sin2T = (1 - cosI * cosI) / (eta * eta);
+  if (sin2T >= 1) return 1;  // total internal reflection
+  const float cosT = std::sqrt(1 - sin2T);
+  const float rs = (cosI - eta * cosT) / (cosI + eta * cosT);
+  const float rp = (eta * cosI - cosT) / (eta * cosI + cosT);
+  return 0.5f * (rs * rs + rp * rp);
+}
+
+namespace ggx {
+float D(const Vec3f& h, float alpha) {
+  if (h.z <= 0) return 0;
+  const float a2 = alpha * alpha, c2 = h.z * h.z, d = c2 * (a2 - 1) + 1;
+  return a2 / (kPi * d * d);
+}
+float lambda(const Vec3f& w, float alpha) {
+  const float c2 = w.z * w.z;
+  if (c2 <= 0) return 1e30f;
+  const float tan2 = std::max(0.f, 1 - c2) / c2;
+  return 0.5f * (std::sqrt(1 + alpha * alpha * tan2) - 1);
+}
+Vec3f sampleVisibleNormal(const Vec3f& wo, float alpha, float u0, float u1) {
+  // Stretch, sample the projected hemisphere, unstretch (Heitz 2018, listing 1).
+  const Vec3f vh = normalize(Vec3f{alpha * wo.x, alpha * wo.y, wo.z});
+  const float lensq = vh.x * vh.x + vh.y * vh.y;
+  const Vec3f t1 = lensq > 0 ? Vec3f{-vh.y, vh.x, 0} / std::sqrt(lensq) : Vec3f{1, 0, 0};
+  const Vec3f t2 = cross(vh, t1);
+  const float r = std::sqrt(u0), phi = 2 * kPi * u1;
+  const float p1 = r * std::cos(phi);
+  float p2 = r * std::sin(phi);
+  const float s = 0.5f * (1 + vh.z);
+  p2 = (1 - s) * std::sqrt(std::max(0.f, 1 - p1 * p1)) + s * p2;
+  const Vec3f nh = t1 * p1 + t2 * p2 + vh * std::sqrt(std::max(0.f, 1 - p1 * p1 - p2 * p2));
+  return normalize(Vec3f{alpha * nh.x, alpha * nh.y, std::max(1e-7f, nh.z)});
+}
+}  // namespace ggx
+
+Bsdf::Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior)
+    : m_type(type), m_frame(frame), m_color(color), m_metallic(metallic), m_eta(ior) {
+  m_alpha = std::max(roughness * roughness, kMinAlpha);
+  m_delta = type == MaterialType::Dielectric || (type == MaterialType::Conductor && roughness * roughness < kMinAlpha);
+}
+
+Vec3f Bsdf::f(const Vec3f& wo, const Vec3f& wi) const {
+  return fLocal(m_frame.toLocal(wo), m_frame.toLocal(wi));
+}
+float Bsdf::pdf(const Vec3f& wo, const Vec3f& wi) const {
+  return pdfLocal(m_frame.toLocal(wo), m_frame.toLocal(wi));
+}
+bool Bsdf::sample(const Vec3f& woWorld, float u0, float u1, float u2, BsdfSample& out) const {
+  if (!sampleLocal(m_frame.toLocal(woWorld), u0, u1, u2, out)) return false;
+  out.wi = m_frame.toWorld(out.wi);
+  return true;
+}
+
+// The share of samples the glTF material sends to its specular lobe: its Fresnel weight at
+// normal incidence against the diffuse albedo, kept away from 0 and 1 so both lobes stay sampled.
+float Bsdf::specularProbability(const Vec3f& wo) const {
+  const Vec3f f0 = Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
+  const float spec = luminance(schlick(f0, std::fabs(wo.z)));
+  const float diff = luminance(m_color) * (1 - m_metallic) * (1 - spec);
+  if (diff <= 0) return 1;
+  return std::clamp(spec / (spec + diff), 0.1f, 0.9f);
+}
+
+Vec3f Bsdf::fLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
+  if (m_delta || m_type == MaterialType::Emissive) return {0, 0, 0};
+  if (woIn.z * wiIn.z <= 0) return {0, 0, 0};  // opaque: reflection only
+  // Opaque materials are two-sided: mirror both directions to the upper hemisphere.
+  const float flip = woIn.z < 0 ? -1.f : 1.f;
+  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip}, wi{wiIn.x, wiIn.y, wiIn.z * flip};
+  if (m_type == MaterialType::Diffuse) return m_color / kPi;
+  const Vec3f h = normalize(wo + wi);
+  const float G = 1 / (1 + ggx::lambda(wo, m_alpha) + ggx::lambda(wi, m_alpha));
+  const float spec = ggx::D(h, m_alpha) * G / (4 * wo.z * wi.z);
+  if (m_type == MaterialType::Conductor) return schlick(m_color, dot(wi, h)) * spec;
+  // glTF 2.0 Appendix B: mix(dielectric_brdf, metal_brdf, metallic) with Schlick Fresnel.
+  const Vec3f f0 = Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
+  const Vec3f F = schlick(f0, dot(wi, h));
+  const Vec3f diffuse = (Vec3f{1, 1, 1} - F) * m_color * ((1 - m_metallic) / kPi);
+  return diffuse + F * spec;
+}
+
+float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
+  if (m_delta || m_type == MaterialType::Emissive) return 0;
+  if (woIn.z * wiIn.z <= 0) return 0;
+  const float flip = woIn.z < 0 ? -1.f : 1.f;
+  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip}, wi{wiIn.x, wiIn.y, wiIn.z * flip};
+  const float cosine = wi.z / kPi;
+  if (m_type == MaterialType::Diffuse) return cosine;
+  const Vec3f h = normalize(wo + wi);
+  const float pdfH = ggx::D(h, m_alpha) / (1 + ggx::lambda(wo, m_alpha)) * std::max(0.f, dot(wo, h)) / wo.z;
+  const float spec = pdfH / (4 * dot(wo, h));
+  if (m_type == MaterialType::Conductor) return spec;
+  const float p = specularProbability(wo);
+  return p * spec + (1 - p) * cosine;
+}
+
+bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSample& out) const {
+  if (m_type == MaterialType::Emissive || woIn.z == 0) return false;
+  if (m_type == MaterialType::Dielectric) {
+    // Smooth glass: the side of wo says whether the ray enters (wo.z > 0) or leaves.
+    const float F = fresnelDielectric(woIn.z, m_eta);
+    const float cosO = std::fabs(woIn.z);
+    out.delta = true;
+    if (u0 < F) {
+      out.wi = {-woIn.x, -woIn.y, woIn.z};
+      out.f = Vec3f{F, F, F} / cosO;
+      out.pdf = F;
+      out.transmission = false;
+      return true;
+    }
+    const bool entering = woIn.z > 0;
+    const float eta = entering ? m_eta : 1 / m_eta;  // eta_t / eta_i
+    const float sin2T = (1 - woIn.z * woIn.z) / (eta * eta);
+    const float cosT = std::sqrt(std::max(0.f, 1 - sin2T));
+    out.wi = normalize(Vec3f{-woIn.x / eta, -woIn.y / eta, entering ? -cosT : cosT});
+    // Radiance is compressed by 1/eta^2 on the way in (pbrt-v4, "non-symmetric scattering").
+    out.f = m_color * ((1 - F) / (eta * eta) / std::fabs(out.wi.z));
+    out.pdf = 1 - F;
+    out.transmission = true;
+    return out.pdf > 0;
+  }
+  const float flip = woIn.z < 0 ? -1.f : 1.f;
+  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip};
+  out.transmission = false;
+  if (m_type == MaterialType::Conductor && m_delta) {
+    out.wi = {-wo.x, -wo.y, wo.z * flip};
+    out.f = schlick(m_color, wo.z) / wo.z;
+    out.pdf = 1;
+    out.delta = true;
+    return true;
+  }
+  out.delta = false;
+  Vec3f wi;
+  if (m_type == MaterialType::Diffuse) {
+    wi = sampleCosineHemisphere(u1, u2);
+  } else {
+    const float p = m_type == MaterialType::Conductor ? 1.f : specularProbability(wo);
+    if (u0 < p) {
+      wi = reflect(wo, ggx::sampleVisibleNormal(wo, m_alpha, u1, u2));
+      if (wi.z <= 0) return false;
+    } else {
+      wi = sampleCosineHemisphere(u1, u2);
+    }
+  }
+  out.wi = {wi.x, wi.y, wi.z * flip};
+  out.f = fLocal(woIn, out.wi);
+  out.pdf = pdfLocal(woIn, out.wi);
+  return out.pdf > 0;
+}
+
+}  // namespace iso

@@ -1,0 +1,93 @@
+#pragma once
+// Materials (what the scene file and glTF files say) and the BSDF built from one at a hit.
+//
+// BSDF conventions (pbrt-v4): directions point away from the surface; f() is the BSDF value
+// without the cosine; pdf() is per unit solid angle; sample() returns f, pdf and wi with
+// f * |cos(wi, n)| / pdf the path throughput weight. Delta lobes (mirror, smooth glass) have
+// f() = pdf() = 0 and are reached only through sample(), which sets `delta`.
+#include <string>
+#include <vector>
+
+#include "scene/mesh.h"
+#include "scene/scene.h"
+#include "scene/texture.h"
+
+namespace iso {
+
+struct Material {
+  std::string name;
+  MaterialType type = MaterialType::Diffuse;
+  Vec3f color{0.8f, 0.8f, 0.8f};
+  float metallic = 0, roughness = 0.5f, ior = 1.5f;
+  Vec3f emission{0, 0, 0};
+  bool twoSided = false;  // emits from both sides
+  // Indices into the World's textures; -1: none.
+  int colorTexture = -1, metallicRoughnessTexture = -1, normalTexture = -1, emissionTexture = -1;
+  float normalScale = 1;
+  bool emits() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
+};
+
+// An orthonormal frame around a normal.
+struct Frame {
+  Vec3f s, t, n;
+  static Frame fromNormal(const Vec3f& n, const Vec3f& hint);
+  Vec3f toLocal(const Vec3f& v) const { return {dot(v, s), dot(v, t), dot(v, n)}; }
+  Vec3f toWorld(const Vec3f& v) const { return s * v.x + t * v.y + n * v.z; }
+};
+
+struct BsdfSample {
+  Vec3f wi;   // world space
+  Vec3f f;    // BSDF value (for delta lobes: the value that makes f |cos| / pdf right)
+  float pdf = 0;
+  bool delta = false;
+  bool transmission = false;
+};
+
+// The local-frame BSDF (z = shading normal, pointing out of the solid).
+class Bsdf {
+ public:
+  Bsdf() = default;
+  Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior);
+
+  Vec3f f(const Vec3f& wo, const Vec3f& wi) const;
+  float pdf(const Vec3f& wo, const Vec3f& wi) const;
+  // u: three uniform numbers in [0, 1).
+  bool sample(const Vec3f& wo, float u0, float u1, float u2, BsdfSample& out) const;
+  // True when every lobe is a delta (no light sampling helps).
+  bool isDelta() const { return m_delta; }
+  bool isBlack() const { return m_type == MaterialType::Emissive; }
+  const Vec3f& albedo() const { return m_color; }
+  const Frame& frame() const { return m_frame; }
+
+  // Local-frame versions, exposed for tests.
+  Vec3f fLocal(const Vec3f& wo, const Vec3f& wi) const;
+  float pdfLocal(const Vec3f& wo, const Vec3f& wi) const;
+  bool sampleLocal(const Vec3f& wo, float u0, float u1, float u2, BsdfSample& out) const;
+
+ private:
+  float specularProbability(const Vec3f& wo) const;
+
+  MaterialType m_type = MaterialType::Diffuse;
+  Frame m_frame;
+  Vec3f m_color{0.8f, 0.8f, 0.8f};
+  float m_metallic = 0, m_alpha = 0, m_eta = 1.5f;
+  bool m_delta = false;
+};
+
+// GGX (Trowbridge-Reitz) with the height-correlated Smith term; visible-normal sampling
+// (Heitz 2018, "Sampling the GGX Distribution of Visible Normals").
+namespace ggx {
+float D(const Vec3f& h, float alpha);
+float lambda(const Vec3f& w, float alpha);
+Vec3f sampleVisibleNormal(const Vec3f& wo, float alpha, float u0, float u1);
+}  // namespace ggx
+
+// Exact Fresnel reflectance of a smooth dielectric; cosI > 0 on the side of the normal.
+float fresnelDielectric(float cosI, float eta);
+
+// Helpers shared by integrators and lights.
+inline float luminance(const Vec3f& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+Vec3f sampleCosineHemisphere(float u0, float u1);
+Vec3f sampleUniformSphere(float u0, float u1);
+
+}  // namespace iso

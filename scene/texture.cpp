@@ -1,0 +1,109 @@
+#include "scene/texture.h"
+
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
+#include <cmath>
+
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+float srgbToLinear(float v) {
+  return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
+}
+
+int wrapIndex(int i, int n, TextureWrap wrap) {
+  switch (wrap) {
+    case TextureWrap::Clamp: return std::clamp(i, 0, n - 1);
+    case TextureWrap::Mirror: {
+      const int period = 2 * n;
+      int k = ((i % period) + period) % period;
+      return k < n ? k : period - 1 - k;
+    }
+    case TextureWrap::Repeat: break;
+  }
+  return ((i % n) + n) % n;
+}
+
+// Reads all of `in` as float RGBA, linearising sRGB 8-bit colour if asked.
+Texture readImage(OIIO::ImageInput& in, const std::string& name, bool srgb, std::vector<Vec4f>& texels,
+                  int& width, int& height) {
+  const OIIO::ImageSpec& spec = in.spec();
+  width = spec.width;
+  height = spec.height;
+  const int channels = spec.nchannels;
+  if (width <= 0 || height <= 0 || channels <= 0 || size_t(width) * height > (size_t(1) << 28))
+    throw InputError(name, "", "image has an unusable size");
+  std::vector<float> data(size_t(width) * height * channels);
+  if (!in.read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data()))
+    throw InputError(name, "", "cannot decode image: " + in.geterror());
+  const bool linearise = srgb && spec.format.basetype == OIIO::TypeDesc::UINT8;
+  texels.resize(size_t(width) * height);
+  for (size_t i = 0; i < texels.size(); ++i) {
+    const float* p = &data[i * channels];
+    float c[4] = {p[0], channels > 1 ? p[1] : p[0], channels > 2 ? p[2] : p[0], 1};
+    if (channels == 4) c[3] = p[3];
+    if (channels == 2) c[3] = p[1];
+    if (linearise)
+      for (int k = 0; k < 3; ++k) c[k] = srgbToLinear(c[k]);
+    for (int k = 0; k < 4; ++k)
+      if (!std::isfinite(c[k])) throw InputError(name, "pixel " + std::to_string(i), "value is not finite");
+    texels[i] = {c[0], c[1], c[2], c[3]};
+  }
+  return {};
+}
+
+}  // namespace
+
+Vec4f Texture::lookup(float u, float v) const {
+  if (m_texels.empty()) return {};
+  const float fx = u * m_width - 0.5f, fy = v * m_height - 0.5f;
+  if (m_nearest || !std::isfinite(fx) || !std::isfinite(fy)) {
+    const float cx = std::isfinite(fx) ? std::floor(fx + 0.5f) : 0, cy = std::isfinite(fy) ? std::floor(fy + 0.5f) : 0;
+    return texel(wrapIndex(int(std::fmod(cx, 1 << 24)), m_width, m_wrapS),
+                 wrapIndex(int(std::fmod(cy, 1 << 24)), m_height, m_wrapT));
+  }
+  const float x0f = std::floor(fx), y0f = std::floor(fy);
+  const float ax = fx - x0f, ay = fy - y0f;
+  // fmod keeps the integer conversion defined for huge coordinates.
+  const int x0 = int(std::fmod(x0f, float(1 << 24))), y0 = int(std::fmod(y0f, float(1 << 24)));
+  const int xa = wrapIndex(x0, m_width, m_wrapS), xb = wrapIndex(x0 + 1, m_width, m_wrapS);
+  const int ya = wrapIndex(y0, m_height, m_wrapT), yb = wrapIndex(y0 + 1, m_height, m_wrapT);
+  auto mix = [](const Vec4f& a, const Vec4f& b, float t) {
+    return Vec4f{a.x + (b.x - a.x) * t, a.y + (b.y - a.y) * t, a.z + (b.z - a.z) * t, a.w + (b.w - a.w) * t};
+  };
+  return mix(mix(texel(xa, ya), texel(xb, ya), ax), mix(texel(xa, yb), texel(xb, yb), ax), ay);
+}
+
+Texture Texture::decode(const std::vector<unsigned char>& encoded, const std::string& name, bool srgb,
+                        TextureWrap wrapS, TextureWrap wrapT, bool nearest) {
+  // OpenImageIO picks its reader by extension; the bytes say which one it is.
+  std::string ext = ".png";
+  if (encoded.size() >= 3 && encoded[0] == 0xFF && encoded[1] == 0xD8) ext = ".jpg";
+  else if (!(encoded.size() >= 8 && encoded[0] == 0x89 && encoded[1] == 'P'))
+    throw InputError(name, "", "image is neither PNG nor JPEG");
+  OIIO::Filesystem::IOMemReader reader(encoded.data(), encoded.size());
+  auto in = OIIO::ImageInput::open("texture" + ext, nullptr, &reader);
+  if (!in) throw InputError(name, "", "cannot decode image: " + OIIO::geterror());
+  Texture t;
+  readImage(*in, name, srgb, t.m_texels, t.m_width, t.m_height);
+  t.m_wrapS = wrapS;
+  t.m_wrapT = wrapT;
+  t.m_nearest = nearest;
+  return t;
+}
+
+Texture Texture::loadFile(const std::string& path) {
+  std::error_code ec;
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) throw InputError(path, "", "cannot read image: " + OIIO::geterror());
+  Texture t;
+  readImage(*in, path, true, t.m_texels, t.m_width, t.m_height);
+  t.m_wrapS = TextureWrap::Repeat;
+  t.m_wrapT = TextureWrap::Clamp;
+  return t;
+}
+
+}  // namespace iso
