@@ -42,7 +42,8 @@ Vec3f Light::directionFromLatLong(float u, float v) {
 
 void Light::latLongFromDirection(const Vec3f& d, float& u, float& v) {
   u = std::atan2(d.x, -d.z) / (2 * kPi) + 0.5f;
-  v = std::acos(std::clamp(d.y, -1.f, 1.f)) / kPi;
+  // atan2 keeps theta accurate near the poles, where acos(d.y) loses it in float.
+  v = std::clamp(std::atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y) / kPi, 0.f, 1.f);
   u = u - std::floor(u);
 }
 

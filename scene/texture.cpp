@@ -95,6 +95,15 @@ Texture Texture::decode(const std::vector<unsigned char>& encoded, const std::st
   return t;
 }
 
+Texture Texture::fromTexels(int width, int height, std::vector<Vec4f> texels) {
+  Texture t;
+  t.m_width = width;
+  t.m_height = height;
+  t.m_texels = std::move(texels);
+  t.m_wrapT = TextureWrap::Clamp;
+  return t;
+}
+
 Texture Texture::loadFile(const std::string& path) {
   std::error_code ec;
   auto in = OIIO::ImageInput::open(path);

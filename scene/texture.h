@@ -26,6 +26,7 @@ class Texture {
   static Texture decode(const std::vector<unsigned char>& encoded, const std::string& name, bool srgb,
                         TextureWrap wrapS = TextureWrap::Repeat, TextureWrap wrapT = TextureWrap::Repeat,
                         bool nearest = false);
+  static Texture fromTexels(int width, int height, std::vector<Vec4f> texels);
   // A float image file (EXR, HDR, ...) for an environment light; InputError on failure.
   static Texture loadFile(const std::string& path);
 

@@ -1,0 +1,186 @@
+// The scene format: every documented key is read into the description, and each kind of
+// error names the JSON path where it is.
+#include <gtest/gtest.h>
+
+#include "scene/scene.h"
+#include "tests/test_util.h"
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+const char* kFullScene = R"({
+  "camera": { "position": [1, 2, 3], "look_at": [0, 1, 0], "up": [0, 0, 1], "fov": 35 },
+  "film": { "width": 320, "height": 200 },
+  "integrator": { "type": "normals", "spp": 16, "max_depth": 7, "ao_distance": 2.5, "seed": 9 },
+  "intersector": "neubauer:5",
+  "meshes": [
+    { "file": "models/a.glb", "transform": { "translate": [1, 2, 3], "rotate": { "axis": [0, 1, 0], "degrees": 90 }, "scale": 2 }, "material": "red" },
+    { "shape": "quad", "transform": { "matrix": [2, 0, 0, 1,  0, 3, 0, 2,  0, 0, 4, 3,  0, 0, 0, 1] } },
+    { "shape": "sphere", "transform": { "scale": [1, 2, 3] } }
+  ],
+  "volumes": [ {
+    "file": "v/x.raw", "dims": [4, 5, 6], "type": "uint16", "endian": "big",
+    "origin": [-1, -2, -3], "spacing": [0.5, 0.25, 2],
+    "transform": { "translate": [10, 0, 0] },
+    "isosurfaces": [ { "value": 60, "material": "glass", "inside": "below" }, { "value": 100, "color": [0.1, 0.2, 0.3] } ]
+  }, {
+    "procedural": { "field": "gyroid", "resolution": [8, 9, 10] }, "isosurfaces": [ { "value": 0 } ]
+  } ],
+  "materials": {
+    "red": { "type": "diffuse", "color": [0.9, 0.1, 0.1] },
+    "plastic": { "type": "metallic_roughness", "color": 0.5, "metallic": 0.25, "roughness": 0.75 },
+    "gold": { "type": "conductor", "color": [1, 0.8, 0.3], "roughness": 0.2 },
+    "glass": { "type": "dielectric", "ior": 1.33, "color": [0.9, 1, 1] },
+    "lamp": { "type": "emissive", "radiance": [10, 9, 8], "two_sided": true }
+  },
+  "lights": [
+    { "type": "point", "position": [0, 5, 0], "intensity": [50, 40, 30] },
+    { "type": "spot", "position": [1, 5, 0], "direction": [0, -2, 0], "intensity": 20, "inner_angle": 10, "outer_angle": 30 },
+    { "type": "directional", "direction": [0, 0, -3], "irradiance": [2, 2, 2] },
+    { "type": "environment", "radiance": 0.5, "file": "sky.exr" }
+  ]
+})";
+
+TEST(SceneFormat, EveryDocumentedKeyIsRead) {
+  const SceneDesc s = parseSceneText(kFullScene, "/scenes/full.json");
+  EXPECT_EQ(s.camera.position, Vec3d(1, 2, 3));
+  EXPECT_EQ(s.camera.lookAt, Vec3d(0, 1, 0));
+  EXPECT_EQ(s.camera.up, Vec3d(0, 0, 1));
+  EXPECT_EQ(s.camera.fov, 35);
+  EXPECT_EQ(s.settings.width, 320);
+  EXPECT_EQ(s.settings.height, 200);
+  EXPECT_EQ(s.settings.integrator, "normals");
+  EXPECT_EQ(s.settings.spp, 16);
+  EXPECT_EQ(s.settings.maxDepth, 7);
+  EXPECT_EQ(s.settings.aoDistance, 2.5);
+  EXPECT_EQ(s.settings.seed, 9u);
+  EXPECT_EQ(s.settings.intersector.kind, IntersectorKind::Neubauer);
+  EXPECT_EQ(s.settings.intersector.iterations, 5);
+
+  ASSERT_EQ(s.meshes.size(), 3u);
+  EXPECT_EQ(s.meshes[0].file, "/scenes/models/a.glb");  // relative to the scene file
+  EXPECT_EQ(s.meshes[0].material, "red");
+  // scale 2, then 90 degrees about y, then translate: (1, 0, 0) -> (2, 0, 0) -> (0, 0, -2) -> (1, 2, 1).
+  const Vec3d p = s.meshes[0].transform.point({1, 0, 0});
+  EXPECT_NEAR(p.x, 1, 1e-12); EXPECT_NEAR(p.y, 2, 1e-12); EXPECT_NEAR(p.z, 1, 1e-12);
+  EXPECT_EQ(s.meshes[1].shape, MeshShape::Quad);
+  EXPECT_EQ(s.meshes[1].transform.point({1, 1, 1}), Vec3d(3, 5, 7));  // row-major matrix
+  EXPECT_EQ(s.meshes[2].shape, MeshShape::Sphere);
+  EXPECT_EQ(s.meshes[2].transform.point({1, 1, 1}), Vec3d(1, 2, 3));
+
+  ASSERT_EQ(s.volumes.size(), 2u);
+  const VolumeDesc& v = s.volumes[0];
+  EXPECT_EQ(v.file, "/scenes/v/x.raw");
+  ASSERT_TRUE(v.layout.dims && v.layout.type);
+  EXPECT_EQ(*v.layout.dims, Vec3i(4, 5, 6));
+  EXPECT_EQ(*v.layout.type, ScalarType::UInt16);
+  EXPECT_TRUE(v.layout.bigEndian);
+  EXPECT_EQ(*v.origin, Vec3d(-1, -2, -3));
+  EXPECT_EQ(*v.spacing, Vec3d(0.5, 0.25, 2));
+  EXPECT_EQ(v.transform.point({0, 0, 0}), Vec3d(10, 0, 0));
+  ASSERT_EQ(v.isosurfaces.size(), 2u);
+  EXPECT_EQ(v.isosurfaces[0].value, 60);
+  EXPECT_EQ(v.isosurfaces[0].material, "glass");
+  EXPECT_FALSE(v.isosurfaces[0].solidAbove);
+  EXPECT_TRUE(v.isosurfaces[1].solidAbove);
+  EXPECT_EQ(*v.isosurfaces[1].color, Vec3d(0.1, 0.2, 0.3));
+  EXPECT_EQ(*s.volumes[1].field, Field::Gyroid);
+  EXPECT_EQ(s.volumes[1].resolution, Vec3i(8, 9, 10));
+
+  ASSERT_EQ(s.materials.size(), 5u);
+  EXPECT_EQ(s.materials.at("red").type, MaterialType::Diffuse);
+  EXPECT_EQ(s.materials.at("red").color, Vec3d(0.9, 0.1, 0.1));
+  const MaterialDesc& plastic = s.materials.at("plastic");
+  EXPECT_EQ(plastic.type, MaterialType::MetallicRoughness);
+  EXPECT_EQ(plastic.color, Vec3d(0.5, 0.5, 0.5));
+  EXPECT_EQ(plastic.metallic, 0.25);
+  EXPECT_EQ(plastic.roughness, 0.75);
+  EXPECT_EQ(s.materials.at("gold").type, MaterialType::Conductor);
+  EXPECT_EQ(s.materials.at("gold").roughness, 0.2);
+  EXPECT_EQ(s.materials.at("glass").type, MaterialType::Dielectric);
+  EXPECT_EQ(s.materials.at("glass").ior, 1.33);
+  EXPECT_EQ(s.materials.at("glass").color, Vec3d(0.9, 1, 1));
+  EXPECT_EQ(s.materials.at("lamp").type, MaterialType::Emissive);
+  EXPECT_EQ(s.materials.at("lamp").emission, Vec3d(10, 9, 8));
+  EXPECT_TRUE(s.materials.at("lamp").twoSided);
+
+  ASSERT_EQ(s.lights.size(), 4u);
+  EXPECT_EQ(s.lights[0].type, LightType::Point);
+  EXPECT_EQ(s.lights[0].position, Vec3d(0, 5, 0));
+  EXPECT_EQ(s.lights[0].intensity, Vec3d(50, 40, 30));
+  EXPECT_EQ(s.lights[1].type, LightType::Spot);
+  EXPECT_EQ(s.lights[1].direction, Vec3d(0, -1, 0));  // normalised
+  EXPECT_EQ(s.lights[1].intensity, Vec3d(20, 20, 20));
+  EXPECT_EQ(s.lights[1].innerAngle, 10);
+  EXPECT_EQ(s.lights[1].outerAngle, 30);
+  EXPECT_EQ(s.lights[2].type, LightType::Directional);
+  EXPECT_EQ(s.lights[2].direction, Vec3d(0, 0, -1));
+  EXPECT_EQ(s.lights[2].irradiance, Vec3d(2, 2, 2));
+  EXPECT_EQ(s.lights[3].type, LightType::Environment);
+  EXPECT_EQ(s.lights[3].radiance, Vec3d(0.5, 0.5, 0.5));
+  EXPECT_EQ(s.lights[3].file, "/scenes/sky.exr");
+}
+
+TEST(SceneFormat, GltfCameraByNameOrIndex) {
+  EXPECT_EQ(parseSceneText(R"({"camera": {"gltf_camera": "default"}})", "s.json").camera.gltfCamera, "default");
+  EXPECT_EQ(parseSceneText(R"({"camera": {"gltf_camera": 2}})", "s.json").camera.gltfCamera, "#2");
+}
+
+// Each error names the file and the JSON path of the offending value.
+void expectError(const std::string& text, const std::string& where, const std::string& what) {
+  try {
+    parseSceneText(text, "s.json");
+    ADD_FAILURE() << "no error for " << text;
+  } catch (const InputError& e) {
+    const std::string msg = e.what();
+    EXPECT_EQ(msg.rfind("s.json: " + where + ": ", 0), 0u) << msg;
+    EXPECT_NE(msg.find(what), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  }
+}
+
+TEST(SceneFormat, ErrorsNameTheirJsonPath) {
+  // Unknown keys, at every level.
+  expectError(R"({"camra": {}})", "/camra", "unknown key");
+  expectError(R"({"materials": {"m": {"type": "diffuse", "colour": 1}}})", "/materials/m/colour", "unknown key");
+  expectError(R"({"materials": {"m": {"type": "diffuse", "ior": 1.5}}})", "/materials/m/ior", "unknown key");
+  expectError(R"({"lights": [{"type": "point", "irradiance": 1}]})", "/lights/0/irradiance", "unknown key");
+  expectError(R"({"meshes": [{"shape": "quad", "transform": {"shift": [0,0,0]}}]})", "/meshes/0/transform/shift", "unknown key");
+  // Wrong types.
+  expectError(R"({"film": {"width": "640"}})", "/film/width", "whole number");
+  expectError(R"({"lights": [{"type": "point", "position": [0, "1", 0]}]})", "/lights/0/position/1", "number");
+  expectError(R"({"materials": {"m": {"type": "emissive", "two_sided": 1}}})", "/materials/m/two_sided", "true or false");
+  expectError(R"({"meshes": {"file": "a.glb"}})", "/meshes", "array");
+  // Missing required keys.
+  expectError(R"({"lights": [{"position": [0, 1, 0]}]})", "/lights/0/type", "required");
+  expectError(R"({"lights": [{"type": "spot"}]})", "/lights/0/direction", "required");
+  expectError(R"({"materials": {"m": {"color": 1}}})", "/materials/m/type", "required");
+  expectError(R"({"meshes": [{"transform": {}}]})", "/meshes/0", "exactly one of");
+  expectError(R"({"volumes": [{"procedural": {"field": "sphere"}}]})", "/volumes/0/isosurfaces", "required");
+  // Undefined references and bad values.
+  expectError(R"({"meshes": [{"shape": "quad", "material": "nope"}]})", "/meshes/0/material", "undefined material 'nope'");
+  expectError(R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": [{"value": 0.5, "material": "x"}]}]})",
+              "/volumes/0/isosurfaces/0/material", "undefined material 'x'");
+  expectError(R"({"lights": [{"type": "area"}]})", "/lights/0/type", "unknown value 'area'");
+  expectError(R"({"materials": {"g": {"type": "dielectric", "ior": 0.5}}})", "/materials/g/ior", "out of range");
+  expectError(R"({"meshes": [{"shape": "quad", "transform": {"matrix": [1,0,0,0, 0,1,0,0, 0,0,0,0, 0,0,0,1]}}]})",
+              "/meshes/0/transform/matrix", "not invertible");
+  expectError(R"({"meshes": [{"shape": "quad", "transform": {"scale": 0}}]})", "/meshes/0/transform/scale", "flattens");
+  expectError(R"({"camera": {"gltf_camera": "a", "fov": 30}})", "/camera/fov", "not allowed together");
+  expectError("{\n  \"film\": {\"width\": 3,}\n}", "line 2, column 23", "JSON syntax error");
+}
+
+// The command line reports the same errors as one line and exit status 2.
+TEST(SceneFormat, CommandLineReportsUndefinedMaterial) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"meshes": [{"shape": "quad", "material": "nope"}]})");
+  for (const std::string& args : {"render " + dir + "/s.json -o " + dir + "/x.png", "info " + dir + "/s.json"}) {
+    const auto r = test::runIsotrace(args);
+    EXPECT_EQ(r.status, 2) << args;
+    EXPECT_NE(r.err.find("s.json: /meshes/0/material: undefined material 'nope'"), std::string::npos) << r.err;
+  }
+}
+
+}  // namespace
+}  // namespace iso
