@@ -130,6 +130,9 @@ int info(const std::string& path) {
                 "(%zu as Embree instances); %zu materials, %zu textures, %zu cameras, %zu lights in the file\n",
                 m, mi.name.c_str(), mi.triangles, mi.uniqueTriangles, mi.meshes, mi.instances, mi.embreeInstances,
                 mi.materials, mi.textures, mi.cameras, mi.lights);
+    if (mi.triangles)
+      std::printf("    bounds (%g, %g, %g) to (%g, %g, %g)\n", mi.lower.x, mi.lower.y, mi.lower.z, mi.upper.x,
+                  mi.upper.y, mi.upper.z);
   }
   if (world.volumes().empty()) skipped.push_back("no volumes: no grid, brick or iso-surface work is done");
   for (size_t v = 0; v < world.volumes().size(); ++v) {
@@ -149,8 +152,12 @@ int info(const std::string& path) {
                     si.surface->activeBricks().empty() ? " (empty: not built)" : "");
   }
   std::printf("  materials in use: %zu\n", world.materials().size());
-  for (const Material& m : world.materials())
+  const size_t shown = std::min<size_t>(world.materials().size(), 12);
+  for (size_t i = 0; i < shown; ++i) {
+    const Material& m = world.materials()[i];
     std::printf("    %s: %s%s\n", m.name.c_str(), materialTypeName(m.type), m.emits() ? ", emissive" : "");
+  }
+  if (shown < world.materials().size()) std::printf("    ... and %zu more\n", world.materials().size() - shown);
   std::printf("  textures decoded: %zu", world.textures().size());
   if (images > world.textures().size()) std::printf(" (images in glTF files: %zu; unused ones are not decoded)", images);
   std::printf("\n");

@@ -201,6 +201,12 @@ void World::loadMeshes(const SceneDesc& scene) {
     for (const GltfInstance& inst : g.instances) {
       const Transform toWorld = desc.transform * inst.toFile;
       const std::vector<TriangleMesh>& prims = g.meshes[inst.mesh];
+      for (const TriangleMesh& prim : prims)
+        for (const Vec3f& p : prim.positions) {
+          const Vec3d w = toWorld.point(Vec3d(p));
+          info.lower = min(info.lower, w);
+          info.upper = max(info.upper, w);
+        }
       info.triangles += [&] { size_t n = 0; for (auto& p : prims) n += p.triangleCount(); return n; }();
       if (uses[inst.mesh] == 1) {
         // Used once: bake into world space (a flatter BVH, and error bounds in world space).

@@ -58,6 +58,7 @@ struct MeshInfo {
   size_t instances = 0;        // placements of glTF meshes (nodes with a mesh)
   size_t embreeInstances = 0;  // of those, traced as Embree instances (mesh used more than once)
   size_t cameras = 0, lights = 0, materials = 0, textures = 0, images = 0;
+  Vec3d lower{1e300, 1e300, 1e300}, upper{-1e300, -1e300, -1e300};  // world-space bounds
 };
 
 class World {
