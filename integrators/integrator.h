@@ -1,6 +1,21 @@
 #pragma once
 // An integrator answers one question per camera ray: the radiance along it, Li(ray, sampler).
+// Integrators are chosen by name (integratorList() in scene/scene.h):
+//   normals   shading normal at the first hit (signed, 0 where nothing is hit)
+//   eyelight  base colour lit from the eye, for a quick look
+//   ao        ambient occlusion: the share of cosine-weighted directions free up to ao_distance
+//   direct    emission seen directly + next-event estimation from every light, combined with
+//             BSDF sampling by multiple importance sampling (= path with max_depth 1)
+//   path      unidirectional path tracing with next-event estimation and MIS
+//   compare   path, with the direct part (paths of depth 1) kept apart in the same samples
+//
+// max_depth convention (pbrt's): the number of scattering events whose light is gathered.
+// max_depth 1 is direct lighting (emission seen directly, plus light reaching the first
+// surface the camera sees); max_depth 2 adds one bounce of indirect light, and so on. In a
+// closed diffuse sphere of albedo a around a light, depth d gives (1 - a^d) / (1 - a) times
+// the direct value.
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -9,7 +24,7 @@
 
 namespace iso {
 
-// Per-thread counters, summed by the renderer after the frame.
+// Per-thread counters, summed by the renderer after the frame ("Category/Name" in --stats).
 struct RayCounters {
   uint64_t camera = 0;
   uint64_t shadow = 0;
@@ -23,20 +38,48 @@ struct RayCounters {
   }
 };
 
+// What one camera sample returns: radiance, the direct part of it (compare only), and the
+// first hit's albedo, shading normal and distance for the AOV layers.
+struct SampleResult {
+  Vec3f L{0, 0, 0};
+  Vec3f direct{0, 0, 0};
+  Vec3f albedo{0, 0, 0};
+  Vec3f normal{0, 0, 0};
+  float depth = std::numeric_limits<float>::infinity();  // infinity where nothing is hit
+};
+
 class Integrator {
  public:
   explicit Integrator(const World& world) : m_world(world) {}
   virtual ~Integrator() = default;
-  virtual Vec3f Li(const Ray& ray, Sampler& sampler, RayCounters& counters) const = 0;
+  virtual void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const = 0;
   // True when the output holds signed values (normals) rather than radiance; PNG output
   // then maps [-1, 1] to [0, 1] instead of tone mapping.
   virtual bool signedOutput() const { return false; }
+  // True when SampleResult::direct is filled (the compare integrator).
+  virtual bool splitsDirect() const { return false; }
 
  protected:
+  void recordFirstHit(const Ray& ray, const Hit& hit, SampleResult& out) const {
+    out.albedo = m_world.albedo(hit);
+    out.normal = hit.shading;
+    out.depth = hit.t * length(ray.dir);
+  }
+
   const World& m_world;
 };
 
-// Creates an integrator by name; InputError-free: the name was validated by the caller.
-std::unique_ptr<Integrator> makeIntegrator(const std::string& name, const World& world);
+// The power heuristic with beta = 2 (Veach 1997, 9.2.4): the weight of a sample drawn with
+// density `pdfA` when the other strategy would have drawn it with density `pdfB`.
+inline float powerHeuristic(float pdfA, float pdfB) {
+  const float a = pdfA * pdfA, b = pdfB * pdfB;
+  if (!(a > 0)) return 0;
+  if (std::isinf(a)) return 1;
+  return a / (a + b);
+}
+
+// Creates an integrator by name (validated by the caller) with the scene's settings.
+std::unique_ptr<Integrator> makeIntegrator(const std::string& name, const World& world,
+                                           const RenderSettings& settings = RenderSettings());
 
 }  // namespace iso

@@ -5,6 +5,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <chrono>
+#include <csignal>
+#include <unistd.h>
+#include <tbb/task_arena.h>
 #include <map>
 #include <regex>
 
@@ -15,8 +19,8 @@ namespace iso {
 namespace {
 
 struct RenderFlags {
-  std::string scene, output, integrator, intersector, resolution;
-  int spp = 0, threads = -1;
+  std::string scene, output, integrator, intersector, resolution, aov, stats;
+  int spp = 0, threads = -1, maxDepth = 0;
   long long seed = -1;
   bool quiet = false;
 };
@@ -47,11 +51,88 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
     if (f.spp < 0) throw InputError("--spp", "", "must be at least 1");
     s.spp = f.spp;
   }
+  if (f.maxDepth != 0) {
+    if (f.maxDepth < 1) throw InputError("--max-depth", "", "must be at least 1");
+    s.maxDepth = f.maxDepth;
+  }
   if (f.threads >= 0) s.threads = f.threads;
   if (f.seed >= 0) s.seed = uint64_t(f.seed);
 }
 
+std::vector<std::string> parseAovs(const std::string& list, const std::string& output) {
+  std::vector<std::string> aovs;
+  if (list.empty()) return aovs;
+  size_t start = 0;
+  while (start <= list.size()) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    const std::string name = list.substr(start, comma - start);
+    if (name != "albedo" && name != "normal" && name != "depth" && name != "variance")
+      throw InputError("--aov", "", "unknown layer '" + name + "' (known: albedo, normal, depth, variance)");
+    if (std::find(aovs.begin(), aovs.end(), name) == aovs.end()) aovs.push_back(name);
+    start = comma + 1;
+  }
+  if (imageFormatFor(output) != ImageFormat::Exr)
+    throw InputError("--aov", "", "extra layers need an EXR output (-o NAME.exr), not " + output);
+  return aovs;
+}
+
+// "out/x.png" -> "out/x.direct.png".
+std::string withSuffix(const std::string& path, const std::string& suffix) {
+  const std::filesystem::path p(path);
+  return (p.parent_path() / (p.stem().string() + "." + suffix + p.extension().string())).string();
+}
+
+void onSigint(int) {
+  requestStop();
+  std::signal(SIGINT, SIG_DFL);  // a second Ctrl-C ends the process at once
+}
+
+std::string jsonString(const std::string& s) {
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"' || c == '\\') out += '\\';
+    if (static_cast<unsigned char>(c) < 0x20) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\u%04x", c);
+      out += buf;
+      continue;
+    }
+    out += c;
+  }
+  return out + "\"";
+}
+
+void writeStats(const std::string& path, const SceneDesc& scene, const World& world, const RenderResult& r,
+                int threads, double totalSeconds) {
+  const RenderSettings& s = scene.settings;
+  const RayCounters& c = r.counters;
+  const uint64_t rays = c.camera + c.shadow + c.indirect;
+  const std::string temp = path + ".partial";
+  FILE* f = std::fopen(temp.c_str(), "w");
+  if (!f) throw InputError(path, "", "cannot write statistics");
+  std::fprintf(f,
+               "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
+               "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
+               "  \"max_depth\": %d,\n"
+               "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
+               "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
+               "  \"rays_per_second\": %.1f,\n"
+               "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu}\n}\n",
+               jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.interrupted ? "true" : "false",
+               threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
+               world.loadSeconds(), world.buildSeconds(), r.seconds, totalSeconds, (unsigned long long)c.camera,
+               (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
+               r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
+               (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
+  const bool ok = std::fclose(f) == 0;
+  if (!ok || std::rename(temp.c_str(), path.c_str()) != 0) {
+    std::remove(temp.c_str());
+    throw InputError(path, "", "cannot write statistics");
+  }
+}
+
 int render(const RenderFlags& flags) {
+  const auto start = std::chrono::steady_clock::now();
   SceneDesc scene = parseSceneFile(flags.scene);
   applyFlags(flags, scene);
   const std::string output = flags.output.empty()
@@ -59,30 +140,80 @@ int render(const RenderFlags& flags) {
                                  : flags.output;
   imageFormatFor(output);  // reject a bad output name before any work
   const RenderSettings& s = scene.settings;
+  RenderOptions options;
+  options.spp = s.spp;
+  options.seed = s.seed;
+  options.threads = s.threads;
+  options.aovs = parseAovs(flags.aov, output);
+  options.progress = !flags.quiet && isatty(2);
+  if (!flags.stats.empty()) {
+    const std::filesystem::path sp(flags.stats);
+    if (sp.has_parent_path() && !std::filesystem::is_directory(sp.parent_path()))
+      throw InputError(flags.stats, "", "output directory does not exist");
+  }
   World world(scene, s.intersector);
   for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
   Camera camera(world.camera(), s.width, s.height);
-  auto integrator = makeIntegrator(s.integrator, world);
+  auto integrator = makeIntegrator(s.integrator, world, s);
   Film film(s.width, s.height);
-  const RenderResult result = renderFrame(camera, *integrator, {s.spp, s.seed, s.threads}, film);
-  writeImage(output, film, integrator->signedOutput(),
-             {{"Software", "isotrace"},
-              {"isotrace:spp", std::to_string(s.spp)},
-              {"isotrace:integrator", s.integrator},
-              {"isotrace:intersector", intersectorName(s.intersector)}});
+  std::unique_ptr<Film> direct;
+  if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
+
+  clearStopRequest();
+  auto previous = std::signal(SIGINT, onSigint);
+  const RenderResult result = renderFrame(camera, *integrator, options, film, direct.get());
+  std::signal(SIGINT, previous == SIG_ERR ? SIG_DFL : previous);
+
+  std::map<std::string, std::string> metadata = {
+      {"Software", "isotrace"},
+      {"isotrace:spp", std::to_string(result.minSamples)},
+      {"isotrace:spp_requested", std::to_string(s.spp)},
+      {"isotrace:integrator", s.integrator},
+      {"isotrace:max_depth", std::to_string(s.maxDepth)},
+      {"isotrace:intersector", intersectorName(s.intersector)},
+      {"isotrace:seed", std::to_string(s.seed)}};
+  if (result.interrupted) metadata["isotrace:interrupted"] = "1";
+  std::vector<std::string> written;
+  if (direct) {
+    // global = everything, direct = paths of depth 1, indirect = global - direct.
+    Film indirect(s.width, s.height);
+    for (int y = 0; y < s.height; ++y)
+      for (int x = 0; x < s.width; ++x) indirect.at(x, y) = film.at(x, y) - direct->at(x, y);
+    const std::string global = withSuffix(output, "global");
+    writeImage(withSuffix(output, "direct"), *direct, false, metadata);
+    writeImage(global, film, false, metadata);
+    writeImage(withSuffix(output, "indirect"), indirect, false, metadata);
+    written = {withSuffix(output, "direct"), global, withSuffix(output, "indirect")};
+    const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
+    std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
+                 "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
+  } else {
+    writeImage(output, film, integrator->signedOutput(), metadata);
+    written = {output};
+  }
+  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
+  if (!flags.stats.empty()) writeStats(flags.stats, scene, world, result, threads, total);
   if (!flags.quiet) {
     const RayCounters& c = result.counters;
+    const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d, %d spp, %s, %s: load %.2fs, build %.2fs, render %.2fs, "
-                 "%.2f Mrays/s; cells visited %llu, solved %llu, roots refined %llu\n",
-                 s.width, s.height, s.spp, s.integrator.c_str(),
-                 intersectorName(s.intersector).c_str(), world.loadSeconds(), world.buildSeconds(),
-                 result.seconds, (c.camera + c.shadow + c.indirect) / result.seconds * 1e-6,
-                 (unsigned long long)c.traversal.cellsVisited,
-                 (unsigned long long)c.traversal.cellsSolved,
+                 "isotrace: %dx%d, %d spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
+                 "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
+                 s.width, s.height, result.minSamples, s.integrator.c_str(), intersectorName(s.intersector).c_str(),
+                 threads, world.loadSeconds(), world.buildSeconds(), result.seconds, total,
+                 (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
+                 result.seconds > 0 ? rays / result.seconds * 1e-6 : 0.0,
+                 (unsigned long long)c.traversal.cellsVisited, (unsigned long long)c.traversal.cellsSolved,
                  (unsigned long long)c.traversal.rootsRefined);
   }
-  std::printf("%s\n", output.c_str());
+  for (const std::string& path : written) std::printf("%s\n", path.c_str());
+  if (result.interrupted) {
+    std::fprintf(stderr, "isotrace: interrupted: wrote the image of %d of %d samples per pixel\n",
+                 result.minSamples, s.spp);
+    return 130;
+  }
   return 0;
 }
 
@@ -188,6 +319,9 @@ int runCommandLine(int argc, char** argv) {
   renderCmd->add_option("-o,--output", flags.output, "output image, .exr (linear) or .png (sRGB); default <scene>.png");
   renderCmd->add_option("--spp", flags.spp, "samples per pixel");
   renderCmd->add_option("--integrator", flags.integrator, std::string("integrator: ") + integratorList());
+  renderCmd->add_option("--max-depth", flags.maxDepth, "longest path for direct/path/compare (1: direct light only)");
+  renderCmd->add_option("--aov", flags.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance");
+  renderCmd->add_option("--stats", flags.stats, "write times, ray counts and counters as JSON to this file");
   renderCmd->add_option("--intersector", flags.intersector, std::string("intersector: ") + intersectorList());
   renderCmd->add_option("--resolution", flags.resolution, "image size WIDTHxHEIGHT");
   renderCmd->add_option("--threads", flags.threads, "worker threads (0: all cores)");

@@ -25,11 +25,17 @@ ImageFormat imageFormatFor(const std::string& path) {
 namespace {
 
 float linearToSrgb(float v) {
-  v = std::clamp(v, 0.f, 1.f);
+  v = v > 0 ? std::min(v, 1.f) : 0.f;  // NaN and negatives to 0
   return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1 / 2.4f) - 0.055f;
 }
 
 }  // namespace
+
+double Film::meanLuminance() const {
+  double sum = 0;
+  for (const Vec3f& p : m_pixels) sum += 0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z;
+  return m_pixels.empty() ? 0 : sum / m_pixels.size();
+}
 
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata) {
@@ -42,16 +48,30 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
                         ("." + target.stem().string() + ".partial-" + std::to_string(getpid()) +
                          target.extension().string());
   const int w = film.width(), h = film.height();
-  OIIO::ImageSpec spec(w, h, 3, format == ImageFormat::Exr ? OIIO::TypeDesc::FLOAT
-                                                           : OIIO::TypeDesc::UINT8);
+  const bool exr = format == ImageFormat::Exr;
+  int channels = 3;
+  std::vector<std::string> names = {"R", "G", "B"};
+  if (exr)
+    for (const Film::Layer& layer : film.layers())
+      for (const std::string& c : layer.channels) {
+        names.push_back(layer.name + "." + c);
+        ++channels;
+      }
+  OIIO::ImageSpec spec(w, h, channels, exr ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
+  spec.channelnames = names;
   for (const auto& [key, value] : metadata) spec.attribute(key, value);
   std::vector<float> floats;
   std::vector<uint8_t> bytes;
-  if (format == ImageFormat::Exr) {
-    floats.resize(size_t(w) * h * 3);
+  if (exr) {
+    floats.resize(size_t(w) * h * channels);
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x)
-        for (int c = 0; c < 3; ++c) floats[(size_t(y) * w + x) * 3 + c] = film.at(x, y)[c];
+      for (int x = 0; x < w; ++x) {
+        const size_t pixel = size_t(y) * w + x;
+        float* out = &floats[pixel * channels];
+        for (int c = 0; c < 3; ++c) *out++ = film.at(x, y)[c];
+        for (const Film::Layer& layer : film.layers())
+          for (size_t c = 0; c < layer.channels.size(); ++c) *out++ = layer.data[pixel * layer.channels.size() + c];
+      }
   } else {
     bytes.resize(size_t(w) * h * 3);
     for (int y = 0; y < h; ++y)

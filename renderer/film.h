@@ -1,5 +1,6 @@
 #pragma once
-// The image being rendered (linear RGB, float) and how it reaches disk.
+// The image being rendered (linear RGB, float), its extra layers (AOVs), and how it reaches
+// disk.
 #include <map>
 #include <string>
 #include <vector>
@@ -10,15 +11,32 @@ namespace iso {
 
 class Film {
  public:
+  // One named layer of 1 or 3 channels, written to EXR as "<name>.R/G/B" or "<name>.Z".
+  struct Layer {
+    std::string name;
+    std::vector<std::string> channels;
+    std::vector<float> data;  // channels.size() per pixel
+  };
+
   Film(int width, int height) : m_width(width), m_height(height), m_pixels(size_t(width) * height) {}
   int width() const { return m_width; }
   int height() const { return m_height; }
   Vec3f& at(int x, int y) { return m_pixels[size_t(y) * m_width + x]; }
   const Vec3f& at(int x, int y) const { return m_pixels[size_t(y) * m_width + x]; }
+  Layer& addLayer(const std::string& name, std::vector<std::string> channels) {
+    m_layers.push_back({name, std::move(channels), {}});
+    m_layers.back().data.assign(size_t(m_width) * m_height * m_layers.back().channels.size(), 0.f);
+    return m_layers.back();
+  }
+  const std::vector<Layer>& layers() const { return m_layers; }
+  std::vector<Layer>& layers() { return m_layers; }
+  // Mean of the Rec. 709 luminance of the main layer.
+  double meanLuminance() const;
 
  private:
   int m_width, m_height;
   std::vector<Vec3f> m_pixels;
+  std::vector<Layer> m_layers;
 };
 
 enum class ImageFormat { Exr, Png };
@@ -26,9 +44,9 @@ enum class ImageFormat { Exr, Png };
 // The format an output name asks for; InputError for anything else.
 ImageFormat imageFormatFor(const std::string& path);
 
-// EXR: linear float as rendered. PNG: 8-bit sRGB, clamped; signed data (normals) is mapped
-// from [-1, 1] to [0, 1] instead. Written to a temporary file beside `path` and renamed, so
-// a failure never leaves a truncated image behind.
+// EXR: linear float as rendered, with every extra layer. PNG: 8-bit sRGB, clamped, the main
+// layer only; signed data (normals) is mapped from [-1, 1] to [0, 1] instead. Written to a
+// temporary file beside `path` and renamed, so a failure never leaves a truncated image.
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata);
 

@@ -4,42 +4,155 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <mutex>
 
 namespace iso {
 
+namespace {
+
+volatile std::sig_atomic_t g_stop = 0;
+
+// What a pixel has gathered so far; sums in double, in sample order.
+struct PixelSums {
+  Vec3d L, L2, direct, albedo, normal;
+  double depth = 0;
+  int depthHits = 0;
+  int samples = 0;
+};
+
+double seconds(std::chrono::steady_clock::time_point since) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+void formatDuration(double s, char* buf, size_t n) {
+  const long t = long(s + 0.5);
+  if (t >= 3600) std::snprintf(buf, n, "%ld:%02ld:%02ld", t / 3600, t / 60 % 60, t % 60);
+  else std::snprintf(buf, n, "%ld:%02ld", t / 60, t % 60);
+}
+
+}  // namespace
+
+void requestStop() { g_stop = 1; }
+void clearStopRequest() { g_stop = 0; }
+bool stopRequested() { return g_stop != 0; }
+
 RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
-                         const RenderOptions& options, Film& film) {
+                         const RenderOptions& options, Film& film, Film* directFilm) {
   constexpr int kTile = 16;
-  const int tilesX = (film.width() + kTile - 1) / kTile;
-  const int tilesY = (film.height() + kTile - 1) / kTile;
+  const int w = film.width(), h = film.height();
+  const int tilesX = (w + kTile - 1) / kTile, tilesY = (h + kTile - 1) / kTile;
+  std::vector<PixelSums> sums(size_t(w) * h);
   tbb::enumerable_thread_specific<RayCounters> counters;
   const auto start = std::chrono::steady_clock::now();
-  auto renderTile = [&](int tile) {
+  const double totalWork = double(w) * h * options.spp;
+  std::atomic<uint64_t> done{0};
+  std::mutex printing;
+  double lastPrint = 0;
+  bool printed = false;
+  auto progress = [&](bool final) {
+    const double elapsed = seconds(start);
+    if (!final && elapsed - lastPrint < 0.25) return;
+    lastPrint = elapsed;
+    const double fraction = std::min(1.0, done.load() / totalWork);
+    char e[32], eta[32];
+    formatDuration(elapsed, e, sizeof e);
+    formatDuration(fraction > 0 ? elapsed * (1 - fraction) / fraction : 0, eta, sizeof eta);
+    const int bar = int(fraction * 30);
+    std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%  elapsed %s  ETA %s ", bar, "==============================",
+                 30 - bar, "", fraction * 100, e, fraction > 0 ? eta : "?");
+    std::fflush(stderr);
+    printed = true;
+  };
+
+  auto renderTile = [&](int tile, int s0, int s1) {
     RayCounters& local = counters.local();
     const int x0 = (tile % tilesX) * kTile, y0 = (tile / tilesX) * kTile;
-    for (int y = y0; y < std::min(y0 + kTile, film.height()); ++y)
-      for (int x = x0; x < std::min(x0 + kTile, film.width()); ++x) {
-        Vec3f sum{0, 0, 0};
-        for (int s = 0; s < options.spp; ++s) {
+    const int x1 = std::min(x0 + kTile, w), y1 = std::min(y0 + kTile, h);
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        PixelSums& p = sums[size_t(y) * w + x];
+        for (int s = s0; s < s1; ++s) {
           Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
           const float jx = sampler.next(), jy = sampler.next();
-          sum += integrator.Li(camera.generateRay(x + jx, y + jy), sampler, local);
+          SampleResult r;
+          integrator.Li(camera.generateRay(x + jx, y + jy), sampler, local, r);
+          const Vec3d L(r.L);
+          p.L += L;
+          p.L2 += L * L;
+          p.direct += Vec3d(r.direct);
+          p.albedo += Vec3d(r.albedo);
+          p.normal += Vec3d(r.normal);
+          if (std::isfinite(r.depth)) {
+            p.depth += r.depth;
+            ++p.depthHits;
+          }
+          ++p.samples;
         }
-        film.at(x, y) = sum / float(options.spp);
       }
+    done += uint64_t(x1 - x0) * (y1 - y0) * (s1 - s0);
+    if (options.progress) {
+      std::unique_lock<std::mutex> lock(printing, std::try_to_lock);
+      if (lock) progress(false);
+    }
   };
+
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
-  arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, tilesX * tilesY, 1),
-                      [&](const tbb::blocked_range<int>& r) {
-                        for (int t = r.begin(); t < r.end(); ++t) renderTile(t);
-                      });
-  });
   RenderResult result;
-  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  int passStart = 0, passSize = 1;
+  for (int pass = 0; passStart < options.spp && !stopRequested(); ++pass) {
+    const int s0 = passStart, s1 = std::min(options.spp, passStart + passSize);
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<int>(0, tilesX * tilesY, 1), [&](const tbb::blocked_range<int>& r) {
+        for (int t = r.begin(); t < r.end(); ++t)
+          if (!stopRequested()) renderTile(t, s0, s1);
+      });
+    });
+    passStart = s1;
+    if (pass >= 1) passSize = std::min(passSize * 2, 16);
+  }
+  result.seconds = seconds(start);
+  if (options.progress && printed) {
+    progress(true);
+    std::fprintf(stderr, "\n");
+  }
+  result.minSamples = options.spp;
+  for (const PixelSums& p : sums) result.minSamples = std::min(result.minSamples, p.samples);
+  result.interrupted = stopRequested() && result.minSamples < options.spp;
   for (const RayCounters& c : counters) result.counters.add(c);
+
+  // Averages; what a pixel lacks (no sample yet, or no hit for depth) is 0 / infinity.
+  auto want = [&](const char* name) {
+    return std::find(options.aovs.begin(), options.aovs.end(), name) != options.aovs.end();
+  };
+  Film::Layer* albedo = want("albedo") ? &film.addLayer("albedo", {"R", "G", "B"}) : nullptr;
+  Film::Layer* normal = want("normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
+  Film::Layer* depth = want("depth") ? &film.addLayer("depth", {"Z"}) : nullptr;
+  Film::Layer* variance = want("variance") ? &film.addLayer("variance", {"R", "G", "B"}) : nullptr;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const size_t i = size_t(y) * w + x;
+      const PixelSums& p = sums[i];
+      const double n = std::max(p.samples, 1);
+      film.at(x, y) = Vec3f(p.L / n);
+      if (directFilm) directFilm->at(x, y) = Vec3f(p.direct / n);
+      for (int c = 0; c < 3; ++c) {
+        if (albedo) albedo->data[3 * i + c] = float(p.albedo[c] / n);
+        if (normal) normal->data[3 * i + c] = float(p.normal[c] / n);
+        if (variance) {
+          const double mean = p.L[c] / n;
+          variance->data[3 * i + c] =
+              p.samples > 1 ? float(std::max(0.0, p.L2[c] / n - mean * mean) / (p.samples - 1)) : 0.f;
+        }
+      }
+      if (depth) depth->data[i] = p.depthHits ? float(p.depth / p.depthHits) : INFINITY;
+    }
   return result;
 }
 

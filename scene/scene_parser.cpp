@@ -267,8 +267,12 @@ std::string materialRef(ObjectReader& r, std::string& where) {
 
 }  // namespace
 
-const char* integratorList() { return "normals, eyelight"; }
-bool isKnownIntegrator(const std::string& name) { return name == "normals" || name == "eyelight"; }
+const char* integratorList() { return "normals, eyelight, ao, direct, path, compare"; }
+bool isKnownIntegrator(const std::string& name) {
+  for (const char* known : {"normals", "eyelight", "ao", "direct", "path", "compare"})
+    if (name == known) return true;
+  return false;
+}
 
 SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   Json root;

@@ -535,6 +535,37 @@ Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   return m.emission;
 }
 
+Vec3f offsetRayOrigin(const Hit& hit, const Vec3f& w) {
+  const Vec3f n = dot(w, hit.normal) < 0 ? -hit.normal : hit.normal;  // towards the leaving side
+  const float d = dot(absv(n), hit.pError);
+  Vec3f po = hit.position + n * d;
+  // Round away from the surface. Unlike pbrt this also moves coordinates whose offset is 0
+  // (a hit on the plane y = 0 has no error in y): Embree accepts t = 0, so the origin must
+  // lie strictly on the leaving side.
+  for (int i = 0; i < 3; ++i) {
+    if (n[i] > 0) po[i] = std::nextafter(po[i], INFINITY);
+    else if (n[i] < 0) po[i] = std::nextafter(po[i], -INFINITY);
+  }
+  return po;
+}
+
+Ray spawnRay(const Hit& hit, const Vec3f& dir) {
+  Ray r;
+  r.org = offsetRayOrigin(hit, dir);
+  r.dir = dir;
+  r.tnear = 0;
+  return r;
+}
+
+Ray spawnRayTo(const Hit& hit, const Vec3f& target) {
+  Ray r;
+  r.org = offsetRayOrigin(hit, target - hit.position);
+  r.dir = target - r.org;
+  r.tnear = 0;
+  r.tfar = 1 - 1e-4f;
+  return r;
+}
+
 Vec3f World::environment(const Vec3f& dir) const {
   Vec3f sum{0, 0, 0};
   for (int i : m_environmentLights) sum += m_lights[i].environment(dir);

@@ -143,6 +143,16 @@ class World {
   double m_loadSeconds = 0, m_buildSeconds = 0;
 };
 
+// Rays leaving a hit (pbrt-v4's OffsetRayOrigin): the origin moves along the geometric normal
+// by the hit's position error bound projected on it, to the side the ray leaves to, and is
+// then rounded away from the surface. For iso-surfaces that bound comes from the
+// intersector's error bound on t; for triangles from the barycentric interpolation.
+Vec3f offsetRayOrigin(const Hit& hit, const Vec3f& w);
+Ray spawnRay(const Hit& hit, const Vec3f& dir);
+// A shadow ray to `target` that stops just short of it (1 - 1e-4 of the way, pbrt's
+// ShadowEpsilon, so that an area light's own surface is not an occluder).
+Ray spawnRayTo(const Hit& hit, const Vec3f& target);
+
 // Loads one volume of a scene with its placement applied (file header, then scene keys).
 Grid loadVolume(const VolumeDesc& desc);
 

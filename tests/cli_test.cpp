@@ -1,6 +1,13 @@
 #include <gtest/gtest.h>
 
+#include <OpenImageIO/imageio.h>
+#include <algorithm>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <map>
 
 #include "tests/test_util.h"
 
@@ -95,6 +102,128 @@ TEST(Cli, RendersAnExrWithNormalsAndPrintsItsPath) {
   ASSERT_EQ(info.status, 0) << info.err;
   EXPECT_NE(info.out.find("16x16x16 float32"), std::string::npos) << info.out;
   EXPECT_NE(info.out.find("bricks active"), std::string::npos) << info.out;
+}
+
+// A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky.
+std::string mixedScene() {
+  return R"({"camera": {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]}, "film": {"width": 32, "height": 24},
+    "meshes": [{"shape": "quad", "transform": {"scale": 3}, "material": "floor"}],
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "transform": {"translate": [0, 1, 0]},
+                 "isosurfaces": [{"value": 0.6, "inside": "below", "material": "ball"}]}],
+    "materials": {"floor": {"type": "diffuse", "color": 0.7}, "ball": {"type": "metallic_roughness", "color": [0.8, 0.3, 0.2]}},
+    "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}]})";
+}
+
+std::vector<float> readExr(const std::string& path, std::vector<std::string>* channels = nullptr,
+                           std::map<std::string, std::string>* metadata = nullptr) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) return {};
+  const OIIO::ImageSpec& spec = in->spec();
+  std::vector<float> data(size_t(spec.width) * spec.height * spec.nchannels);
+  in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data());
+  if (channels) *channels = spec.channelnames;
+  if (metadata)
+    for (const char* key : {"isotrace:spp", "isotrace:interrupted", "isotrace:integrator"})
+      if (spec.find_attribute(key)) (*metadata)[key] = spec.get_string_attribute(key);
+  return data;
+}
+
+TEST(Cli, CompareWritesDirectGlobalAndIndirect) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const auto r = runIsotrace("render " + dir + "/m.json --integrator compare --spp 8 -o " + dir + "/c.exr");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.out, dir + "/c.direct.exr\n" + dir + "/c.global.exr\n" + dir + "/c.indirect.exr\n");
+  EXPECT_NE(r.err.find("of the light is indirect"), std::string::npos) << r.err;
+  const auto direct = readExr(dir + "/c.direct.exr"), global = readExr(dir + "/c.global.exr"),
+             indirect = readExr(dir + "/c.indirect.exr");
+  ASSERT_EQ(direct.size(), 32u * 24u * 3u);
+  ASSERT_EQ(global.size(), direct.size());
+  ASSERT_EQ(indirect.size(), direct.size());
+  double sumIndirect = 0;
+  for (size_t i = 0; i < direct.size(); ++i) {
+    EXPECT_NEAR(global[i], direct[i] + indirect[i], 1e-6 * (1 + global[i]));
+    EXPECT_GE(indirect[i], -1e-6f);  // indirect paths only add light
+    sumIndirect += indirect[i];
+  }
+  EXPECT_GT(sumIndirect, 0);  // the floor lights the ball and the ball the floor
+}
+
+TEST(Cli, StatsJsonAndAovLayers) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const auto r = runIsotrace("render " + dir + "/m.json --integrator path --spp 2 --threads 2 --aov albedo,normal,depth -o " +
+                             dir + "/a.exr --stats " + dir + "/s.json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::ifstream in(dir + "/s.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  for (const char* key : {"width", "height", "spp", "threads", "integrator", "intersector", "rays_per_second"})
+    EXPECT_TRUE(j.contains(key)) << key;
+  for (const char* key : {"load", "build", "render", "total"}) EXPECT_TRUE(j["seconds"].contains(key)) << key;
+  for (const char* key : {"camera", "shadow", "indirect"}) EXPECT_TRUE(j["rays"].contains(key)) << key;
+  EXPECT_EQ(j["rays"]["camera"], 32 * 24 * 2);
+  EXPECT_GT(j["rays"]["shadow"].get<long long>(), 0);
+  EXPECT_GT(j["rays"]["indirect"].get<long long>(), 0);
+  EXPECT_EQ(j["width"], 32);
+  EXPECT_EQ(j["spp"], 2);
+  EXPECT_EQ(j["threads"], 2);
+  EXPECT_EQ(j["integrator"], "path");
+  EXPECT_EQ(j["intersector"], "isolation:8");
+  EXPECT_GT(j["counters"]["Iso/CellsVisited"].get<long long>(), 0);
+
+  std::vector<std::string> channels;
+  const auto data = readExr(dir + "/a.exr", &channels);
+  // OpenEXR stores channels sorted by name; look them up.
+  ASSERT_EQ(channels.size(), 10u);
+  auto channel = [&](const std::string& name) {
+    const auto it = std::find(channels.begin(), channels.end(), name);
+    EXPECT_NE(it, channels.end()) << name;
+    return size_t(it - channels.begin());
+  };
+  const size_t albedoR = channel("albedo.R"), albedoG = channel("albedo.G"), depth = channel("depth.Z");
+  channel("normal.X");
+  channel("normal.Y");
+  channel("normal.Z");
+  channel("R");
+  // The centre pixel sees the ball (albedo of its material), the corners the sky (infinite depth).
+  const size_t centre = (size_t(12) * 32 + 16) * 10;
+  EXPECT_NEAR(data[centre + albedoR], 0.8, 1e-5);
+  EXPECT_NEAR(data[centre + albedoG], 0.3, 1e-5);
+  EXPECT_GT(data[centre + depth], 2.5);
+  EXPECT_LT(data[centre + depth], 4.5);
+  EXPECT_TRUE(std::isinf(data[depth]));
+
+  // Layers need EXR.
+  const auto png = runIsotrace("render " + dir + "/m.json --aov depth -o " + dir + "/a.png");
+  EXPECT_EQ(png.status, 2);
+  EXPECT_NE(png.err.find("--aov: extra layers need an EXR output"), std::string::npos) << png.err;
+  const auto bad = runIsotrace("render " + dir + "/m.json --aov depth,shadows -o " + dir + "/b.exr");
+  EXPECT_EQ(bad.status, 2);
+  EXPECT_NE(bad.err.find("unknown layer 'shadows'"), std::string::npos) << bad.err;
+}
+
+// Ctrl-C stops at the next tile boundary, writes what is finished, and exits with 130.
+TEST(Cli, SigintWritesTheFinishedSamplesAndExits130) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 1000000 " +
+                          "--resolution 64x48 --quiet -o " + dir + "/i.exr >" + dir + "/out.txt 2>" + dir + "/err.txt & " +
+                          "pid=$!; sleep 1.5; kill -INT $pid; wait $pid; echo $? > " + dir + "/status.txt";
+  ASSERT_EQ(std::system(("bash -c '" + cmd + "'").c_str()), 0);
+  std::ifstream status(dir + "/status.txt");
+  int code = -1;
+  status >> code;
+  EXPECT_EQ(code, 130);
+  std::map<std::string, std::string> metadata;
+  const auto data = readExr(dir + "/i.exr", nullptr, &metadata);
+  ASSERT_EQ(data.size(), 64u * 48u * 3u);
+  EXPECT_EQ(metadata["isotrace:interrupted"], "1");
+  const int spp = std::stoi(metadata["isotrace:spp"]);
+  EXPECT_GE(spp, 1);
+  EXPECT_LT(spp, 1000000);
+  for (float v : data) ASSERT_TRUE(std::isfinite(v));
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
 }
 
 }  // namespace

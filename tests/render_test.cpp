@@ -7,6 +7,14 @@
 namespace iso {
 namespace {
 
+RenderOptions options(int spp, uint64_t seed, int threads) {
+  RenderOptions o;
+  o.spp = spp;
+  o.seed = seed;
+  o.threads = threads;
+  return o;
+}
+
 SceneDesc sphereScene(int resolution, double iso) {
   SceneDesc scene;
   VolumeDesc v;
@@ -65,7 +73,7 @@ TEST(Render, NormalsAreExactlyZeroOnMissesAndUnitOnHits) {
   Camera camera(scene.camera, 64, 48);
   auto integrator = makeIntegrator("normals", world);
   Film film(64, 48);
-  const RenderResult r = renderFrame(camera, *integrator, {1, 7, 2}, film);
+  const RenderResult r = renderFrame(camera, *integrator, options(1, 7, 2), film);
   EXPECT_EQ(r.counters.camera, 64u * 48u);
   int hits = 0;
   for (int y = 0; y < 48; ++y)
@@ -85,8 +93,8 @@ TEST(Render, SameImageBitsWithOneAndTwoThreads) {
   Camera camera(scene.camera, 48, 40);
   auto integrator = makeIntegrator("eyelight", world);
   Film one(48, 40), two(48, 40);
-  renderFrame(camera, *integrator, {3, 11, 1}, one);
-  renderFrame(camera, *integrator, {3, 11, 2}, two);
+  renderFrame(camera, *integrator, options(3, 11, 1), one);
+  renderFrame(camera, *integrator, options(3, 11, 2), two);
   for (int y = 0; y < 40; ++y)
     for (int x = 0; x < 48; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
 }

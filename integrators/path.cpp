@@ -1,0 +1,104 @@
+#include "integrators/path.h"
+
+#include <cmath>
+
+namespace iso {
+
+namespace {
+float maxComponent(const Vec3f& v) { return std::max({v.x, v.y, v.z}); }
+bool isBlack(const Vec3f& v) { return !(v.x > 0 || v.y > 0 || v.z > 0); }
+}  // namespace
+
+Vec3f PathIntegrator::sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, Sampler& sampler,
+                                  RayCounters& counters) const {
+  const std::vector<Light>& lights = m_world.lights();
+  const float uPick = sampler.next(), u0 = sampler.next(), u1 = sampler.next(), u2 = sampler.next();
+  if (lights.empty()) return {0, 0, 0};
+  const size_t index = std::min(size_t(uPick * lights.size()), lights.size() - 1);
+  const float pickPdf = 1.f / lights.size();
+  const Light& light = lights[index];
+  LightSample ls;
+  if (!light.sample(hit.position, u0, u1, u2, ls) || !(ls.pdf > 0) || isBlack(ls.L)) return {0, 0, 0};
+  // Opaque surfaces reflect only to the side wo is on: a light behind the geometric surface
+  // is not seen through it, whatever the shading normal says.
+  if (dot(ls.wi, hit.normal) * dot(wo, hit.normal) <= 0) return {0, 0, 0};
+  const Vec3f f = bsdf.f(wo, ls.wi) * std::fabs(dot(ls.wi, bsdf.frame().n));
+  if (isBlack(f)) return {0, 0, 0};
+  ++counters.shadow;
+  const Ray shadow = std::isinf(ls.distance) ? spawnRay(hit, ls.wi)
+                                             : spawnRayTo(hit, hit.position + ls.wi * ls.distance);
+  if (m_world.occluded(shadow, counters.traversal)) return {0, 0, 0};
+  const float lightPdf = ls.pdf * pickPdf;
+  const float weight = ls.delta ? 1.f : powerHeuristic(lightPdf, bsdf.pdf(wo, ls.wi));
+  return f * ls.L * (weight / lightPdf);
+}
+
+void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& counters, SampleResult& out) const {
+  const std::vector<Light>& lights = m_world.lights();
+  const float pickPdf = lights.empty() ? 0.f : 1.f / lights.size();
+  Vec3f L{0, 0, 0}, direct{0, 0, 0}, beta{1, 1, 1};
+  Ray ray = cameraRay;
+  ray.dir = normalize(ray.dir);
+  bool specular = false;  // the last bounce was a delta lobe: no light sampling competed
+  float bsdfPdf = 0;
+  Vec3f previous;  // the last scattering point, for the area light pdf
+  // `bounce` counts scattering events so far: the ray being traced leaves vertex `bounce`.
+  for (int bounce = 0;; ++bounce) {
+    auto add = [&](const Vec3f& c) {
+      L += c;
+      if (bounce <= 1) direct += c;  // emission seen directly or from the first scattering
+    };
+    Hit hit;
+    ++(bounce == 0 ? counters.camera : counters.indirect);
+    if (!m_world.intersect(ray, hit, counters.traversal)) {
+      for (int i : m_world.environmentLights()) {
+        const Vec3f Le = lights[i].environment(ray.dir);
+        const float w = bounce == 0 || specular ? 1.f : powerHeuristic(bsdfPdf, pickPdf * lights[i].pdfEnvironment(ray.dir));
+        add(beta * Le * w);
+      }
+      break;
+    }
+    if (bounce == 0) recordFirstHit(ray, hit, out);
+    const Vec3f wo = -ray.dir;
+    const Vec3f Le = m_world.emitted(hit, wo);
+    if (!isBlack(Le)) {
+      float w = 1;
+      // Emissive triangles were also reachable by light sampling; emissive iso-surfaces are
+      // not lights (found by BSDF sampling only), so they keep weight 1.
+      if (bounce > 0 && !specular && hit.light >= 0)
+        w = powerHeuristic(bsdfPdf, pickPdf * lights[hit.light].pdfArea(previous, hit.position, hit.normal));
+      add(beta * Le * w);
+    }
+    if (bounce == m_maxDepth) break;
+    const Bsdf bsdf = m_world.bsdf(hit);
+    if (bsdf.isBlack()) break;
+    if (!bsdf.isDelta()) {
+      const Vec3f Ld = sampleLight(hit, bsdf, wo, sampler, counters);
+      L += beta * Ld;
+      if (bounce == 0) direct += beta * Ld;
+    }
+    const float u0 = sampler.next(), u1 = sampler.next(), u2 = sampler.next();
+    BsdfSample bs;
+    if (!bsdf.sample(wo, u0, u1, u2, bs)) break;
+    // A reflection must leave on wo's side of the geometric surface, a transmission on the
+    // other; otherwise the shading normal has bent it through the surface.
+    const bool sameSide = dot(bs.wi, hit.normal) * dot(wo, hit.normal) > 0;
+    if (sameSide == bs.transmission) break;
+    beta = beta * bs.f * (std::fabs(dot(bs.wi, bsdf.frame().n)) / bs.pdf);
+    if (!(maxComponent(beta) > 0) || !std::isfinite(maxComponent(beta))) break;
+    specular = bs.delta;
+    bsdfPdf = bs.pdf;
+    previous = hit.position;
+    ray = spawnRay(hit, bs.wi);
+    // Russian roulette after three bounces (pbrt-v4): survival in proportion to throughput.
+    if (bounce >= 2) {
+      const float q = std::max(0.05f, 1 - maxComponent(beta));
+      if (sampler.next() < q) break;
+      beta = beta / (1 - q);
+    }
+  }
+  out.L = L;
+  out.direct = direct;
+}
+
+}  // namespace iso

@@ -1,0 +1,26 @@
+#pragma once
+// Unidirectional path tracing with next-event estimation and multiple importance sampling
+// (pbrt-v4's PathIntegrator, Veach 1997 ch. 9). `direct` is this with max_depth 1.
+#include "integrators/integrator.h"
+
+namespace iso {
+
+class PathIntegrator final : public Integrator {
+ public:
+  // `splitDirect`: also return the direct part (paths of depth 1) in SampleResult::direct.
+  PathIntegrator(const World& world, int maxDepth, bool splitDirect)
+      : Integrator(world), m_maxDepth(maxDepth), m_split(splitDirect) {}
+  void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override;
+  bool splitsDirect() const override { return m_split; }
+
+  // One light chosen uniformly, one sample of it, a shadow ray; weighted against BSDF
+  // sampling by the power heuristic (delta lights: weight 1).
+  Vec3f sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, Sampler& sampler,
+                    RayCounters& counters) const;
+
+ private:
+  int m_maxDepth;
+  bool m_split;
+};
+
+}  // namespace iso
