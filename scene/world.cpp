@@ -537,11 +537,15 @@ Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
 
 Vec3f offsetRayOrigin(const Hit& hit, const Vec3f& w) {
   const Vec3f n = dot(w, hit.normal) < 0 ? -hit.normal : hit.normal;  // towards the leaving side
-  const float d = dot(absv(n), hit.pError);
+  // pbrt rejects hits at t = 0, Embree accepts them (t >= tnear = 0): an origin must lie
+  // strictly on the leaving side even where the bound is 0 (a hit on the plane y = 0 has no
+  // error in y). The floor is one float spacing at the point's magnitude, so the move is
+  // representable and never a denormal, which Embree flushes to zero.
+  const Vec3f a = absv(hit.position);
+  const float floor = std::max(std::max({a.x, a.y, a.z}) * 0x1p-23f, 1e-20f);
+  const float d = std::max(dot(absv(n), hit.pError), floor);
   Vec3f po = hit.position + n * d;
-  // Round away from the surface. Unlike pbrt this also moves coordinates whose offset is 0
-  // (a hit on the plane y = 0 has no error in y): Embree accepts t = 0, so the origin must
-  // lie strictly on the leaving side.
+  // Round away from the surface.
   for (int i = 0; i < 3; ++i) {
     if (n[i] > 0) po[i] = std::nextafter(po[i], INFINITY);
     else if (n[i] < 0) po[i] = std::nextafter(po[i], -INFINITY);

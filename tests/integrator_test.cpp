@@ -183,6 +183,40 @@ TEST(Integrators, PathAtDepthOneIsDirectAndCompareSplitsIt) {
   EXPECT_NEAR(mean, 1 - std::pow(0.5, 5), 0.05);
 }
 
+// A diffuse plane at y = 0 (hits there have no rounding error in y, so shadow rays depend on
+// the spawn offset's floor) under a point light: every pixel has the analytic radiance
+// albedo/pi * I cos(theta) / d^2.
+TEST(Integrators, DirectLightOnAPlaneMatchesTheAnalyticValue) {
+  SceneDesc s = parseSceneText(R"({
+    "camera": {"position": [0.3, 3, 0.2], "look_at": [0, 0, 0], "up": [0, 0, -1], "fov": 60},
+    "meshes": [{"shape": "quad", "transform": {"scale": 4}, "material": "m"}],
+    "materials": {"m": {"type": "diffuse", "color": 0.5}},
+    "lights": [{"type": "point", "position": [0.5, 2, -0.25], "intensity": 3.14159265}]})", "plane.json");
+  World world(s, IntersectorSpec{});
+  const int size = 32;
+  Camera camera(world.camera(), size, size);
+  Film film(size, size);
+  RenderOptions o;
+  o.spp = 1;
+  renderFrame(camera, *makeIntegrator("direct", world, s.settings), o, film);
+  const Vec3d light{0.5, 2, -0.25};
+  int checked = 0;
+  for (int y = 0; y < size; ++y)
+    for (int x = 0; x < size; ++x) {
+      Sampler sampler(uint32_t(x), uint32_t(y), 0, 0);  // the renderer's jitter for sample 0
+      const float jx = sampler.next(), jy = sampler.next();
+      const Ray r = camera.generateRay(x + jx, y + jy);
+      const Vec3d o(r.org), d(r.dir);
+      const Vec3d p = o + d * (-o.y / d.y);
+      if (std::fabs(p.x) > 3.9 || std::fabs(p.z) > 3.9) continue;
+      const Vec3d toLight = light - p;
+      const double dist = length(toLight), expected = 0.5 / M_PI * 3.14159265 * (toLight.y / dist) / (dist * dist);
+      EXPECT_NEAR(film.at(x, y).x, expected, 1e-4 * expected) << x << "," << y;
+      ++checked;
+    }
+  EXPECT_GT(checked, 500);
+}
+
 TEST(Integrators, MisWeightsSumToOne) {
   std::mt19937 rng(2);
   std::uniform_real_distribution<float> u(-8, 8);
