@@ -1,5 +1,10 @@
 #include <gtest/gtest.h>
 
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cmath>
+
 #include "renderer/render.h"
 #include "scene/world.h"
 #include "tests/test_util.h"
@@ -97,6 +102,80 @@ TEST(Render, SameImageBitsWithOneAndTwoThreads) {
   renderFrame(camera, *integrator, options(3, 11, 2), two);
   for (int y = 0; y < 40; ++y)
     for (int x = 0; x < 48; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
+}
+
+TEST(Render, PathTracingIsTheSameWithOneAndTwoThreads) {
+  SceneDesc scene = parseSceneText(R"({
+    "camera": {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]},
+    "meshes": [{"shape": "quad", "transform": {"scale": 3}, "material": "floor"}],
+    "volumes": [{"procedural": {"field": "torus", "resolution": [32, 32, 32]}, "transform": {"translate": [0, 1, 0]},
+                 "isosurfaces": [{"value": 0.25, "inside": "below", "material": "glass"}]}],
+    "materials": {"floor": {"type": "diffuse", "color": 0.7}, "glass": {"type": "dielectric"}},
+    "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}]})",
+                                   "threads.json");
+  scene.settings.maxDepth = 12;
+  World world(scene, {});
+  Camera camera(world.camera(), 40, 30);
+  auto integrator = makeIntegrator("path", world, scene.settings);
+  Film one(40, 30), two(40, 30);
+  renderFrame(camera, *integrator, options(8, 5, 1), one);
+  renderFrame(camera, *integrator, options(8, 5, 2), two);
+  for (int y = 0; y < 30; ++y)
+    for (int x = 0; x < 40; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
+}
+
+// The Cornell example at 48x36 against a stored reference (tests/data/cornell_torus_ref.exr,
+// 4096 spp, made by tests/data/make_references.sh), per pixel: the difference must lie within
+// a few standard errors of the two means (from their variance layers). Unidirectional path
+// tracing of the Cornell box's glossy spheres has rare caustic fireflies, so the variance has
+// a floor of a tenth of the image's mean variance and 0.5% of the pixels may exceed the bound.
+TEST(Render, CornellExampleMatchesItsReference) {
+  const std::string dir = test::scratchDir();
+  const std::string source = ISOTRACE_SOURCE_DIR;
+  const auto r = test::runIsotrace("render " + source + "/examples/cornell_torus.json --resolution 48x36 --spp 256 "
+                                   "--seed 7 --aov variance --quiet -o " + dir + "/c.exr");
+  ASSERT_EQ(r.status, 0) << r.err;
+  auto read = [](const std::string& path, std::vector<float>& rgb, std::vector<float>& var) {
+    auto in = OIIO::ImageInput::open(path);
+    ASSERT_TRUE(in) << path;
+    const OIIO::ImageSpec& spec = in->spec();
+    ASSERT_EQ(spec.width, 48);
+    ASSERT_EQ(spec.height, 36);
+    std::vector<float> all(size_t(spec.width) * spec.height * spec.nchannels);
+    in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, all.data());
+    auto index = [&](const std::string& name) {
+      return int(std::find(spec.channelnames.begin(), spec.channelnames.end(), name) - spec.channelnames.begin());
+    };
+    const int c[6] = {index("R"), index("G"), index("B"), index("variance.R"), index("variance.G"), index("variance.B")};
+    for (int k = 0; k < 6; ++k) ASSERT_LT(c[k], spec.nchannels);
+    for (size_t p = 0; p < size_t(spec.width) * spec.height; ++p)
+      for (int k = 0; k < 3; ++k) {
+        rgb.push_back(all[p * spec.nchannels + c[k]]);
+        var.push_back(all[p * spec.nchannels + c[k + 3]]);
+      }
+  };
+  std::vector<float> test, testVar, ref, refVar;
+  read(dir + "/c.exr", test, testVar);
+  read(source + "/tests/data/cornell_torus_ref.exr", ref, refVar);
+  ASSERT_EQ(test.size(), ref.size());
+  double meanVar = 0, meanTest = 0, meanRef = 0;
+  for (size_t i = 0; i < test.size(); ++i) {
+    meanVar += (testVar[i] + refVar[i]) / test.size();
+    meanTest += test[i] / test.size();
+    meanRef += ref[i] / test.size();
+  }
+  int outliers = 0;
+  double worst = 0;
+  for (size_t i = 0; i < test.size(); ++i) {
+    const double sigma = std::sqrt(std::max(double(testVar[i]) + refVar[i], 0.1 * meanVar));
+    const double z = std::fabs(test[i] - ref[i]) / sigma;
+    worst = std::max(worst, z);
+    outliers += z > 5;
+  }
+  std::printf("mean %.5f vs reference %.5f, worst z %.2f, %d of %zu values beyond 5 sigma\n", meanTest, meanRef, worst,
+              outliers, test.size());
+  EXPECT_LE(outliers, int(0.005 * test.size()));
+  EXPECT_NEAR(meanTest, meanRef, 0.02 * meanRef);
 }
 
 }  // namespace
