@@ -161,6 +161,32 @@ TEST(Gltf, PunctualLightsAndEmissiveStrength) {
   EXPECT_EQ(world.lights().size(), 2u);
 }
 
+std::string base64(const std::string& bytes) {
+  static const char* table = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  for (size_t i = 0; i < bytes.size(); i += 3) {
+    uint32_t v = uint8_t(bytes[i]) << 16;
+    if (i + 1 < bytes.size()) v |= uint8_t(bytes[i + 1]) << 8;
+    if (i + 2 < bytes.size()) v |= uint8_t(bytes[i + 2]);
+    out += table[v >> 18 & 63];
+    out += table[v >> 12 & 63];
+    out += i + 1 < bytes.size() ? table[v >> 6 & 63] : '=';
+    out += i + 2 < bytes.size() ? table[v & 63] : '=';
+  }
+  return out;
+}
+
+TEST(Gltf, EmbeddedBuffersLoad) {
+  const std::string dir = test::scratchDir();
+  const std::string uri = "data:application/octet-stream;base64," + base64(TriangleFile::binary());
+  test::writeText(dir + "/e.gltf", TriangleFile::json("", R"([{"mesh": 0, "translation": [0, 0, 5]}])", uri));
+  const GltfModel m = loadGltf(dir + "/e.gltf");
+  ASSERT_EQ(m.meshes.size(), 1u);
+  ASSERT_EQ(m.meshes[0][0].triangleCount(), 1u);
+  EXPECT_EQ(m.meshes[0][0].positions[1], Vec3f(1, 0, 0));
+  EXPECT_EQ(m.instances[0].toFile.point({1, 0, 0}), Vec3d(1, 0, 5));
+}
+
 TEST(Gltf, StripsAndFansBecomeTriangles) {
   const std::string dir = test::scratchDir();
   // Four vertices of a unit square; the strip 0 1 2 3 and the fan 0 1 3 2 give two triangles each.
