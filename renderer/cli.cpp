@@ -12,6 +12,8 @@
 #include <map>
 #include <regex>
 
+#include "bench/accuracy.h"
+#include "bench/watertight.h"
 #include "renderer/render.h"
 #include "volume/input_error.h"
 
@@ -308,6 +310,151 @@ int info(const std::string& path) {
   return 0;
 }
 
+struct CheckFlags {
+  std::string scene, intersector, json, offset;
+  int rays = 100000, threads = 0;
+  long long seed = 1;
+};
+
+Vec3d parseOffset(const std::string& text) {
+  Vec3d v{0, 0, 0};
+  if (text.empty()) return v;
+  std::smatch m;
+  static const std::regex three(R"(\s*([-+0-9.eE]+)\s*,\s*([-+0-9.eE]+)\s*,\s*([-+0-9.eE]+)\s*)");
+  try {
+    if (!std::regex_match(text, m, three)) throw std::invalid_argument("format");
+    v = {std::stod(m[1]), std::stod(m[2]), std::stod(m[3])};
+  } catch (const std::exception&) {
+    throw InputError("--offset", "", "expected X,Y,Z, e.g. 1e5,1e5,1e5, got '" + text + "'");
+  }
+  if (!isFinite(v)) throw InputError("--offset", "", "offset must be finite");
+  return v;
+}
+
+void writeJsonFile(const std::string& path, const std::string& text) {
+  const std::filesystem::path p(path);
+  if (p.has_parent_path() && !std::filesystem::is_directory(p.parent_path()))
+    throw InputError(path, "", "output directory does not exist");
+  const std::string temp = path + ".partial";
+  FILE* f = std::fopen(temp.c_str(), "w");
+  const bool ok = f && std::fputs(text.c_str(), f) >= 0;
+  if (f && std::fclose(f) != 0) throw InputError(path, "", "cannot write");
+  if (!ok || std::rename(temp.c_str(), path.c_str()) != 0) {
+    std::remove(temp.c_str());
+    throw InputError(path, "", "cannot write");
+  }
+}
+
+int watertight(const CheckFlags& flags) {
+  SceneDesc scene = parseSceneFile(flags.scene);
+  IntersectorSpec spec = scene.settings.intersector;
+  if (!flags.intersector.empty()) {
+    std::string error;
+    if (!parseIntersector(flags.intersector, spec, error)) throw InputError("--intersector", "", error);
+  }
+  if (flags.rays < 1) throw InputError("--rays", "", "must be at least 1");
+  if (flags.seed < 0) throw InputError("--seed", "", "must be at least 0");
+  if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume to check");
+  WatertightOptions options;
+  options.rays = flags.rays;
+  options.seed = uint64_t(flags.seed);
+  options.offset = parseOffset(flags.offset);
+  options.threads = flags.threads;
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<WatertightReport> reports = checkWatertight(scene, spec, options);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::printf("watertight %s: intersector %s, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)\n",
+              flags.scene.c_str(), intersectorName(spec).c_str(), flags.rays, flags.seed, options.offset.x,
+              options.offset.y, options.offset.z);
+  std::printf("%-7s %-10s %9s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "parity_errors",
+              "self_hits", "inside_escapes", "shadow_mismatches");
+  WatertightCounts total;
+  auto row = [](const char* v, const std::string& iso, const WatertightCounts& c) {
+    std::printf("%-7s %-10s %9llu %10llu %14llu %10llu %15llu %18llu\n", v, iso.c_str(), (unsigned long long)c.rays,
+                (unsigned long long)c.crossings, (unsigned long long)c.parityErrors, (unsigned long long)c.selfHits,
+                (unsigned long long)c.insideEscapes, (unsigned long long)c.shadowMismatches);
+  };
+  auto counts = [](const WatertightCounts& c) {
+    char buf[400];
+    std::snprintf(buf, sizeof buf,
+                  "\"rays\": %llu, \"crossings\": %llu, \"parity_errors\": %llu, \"self_hits\": %llu, "
+                  "\"inside_escapes\": %llu, \"shadow_mismatches\": %llu",
+                  (unsigned long long)c.rays, (unsigned long long)c.crossings, (unsigned long long)c.parityErrors,
+                  (unsigned long long)c.selfHits, (unsigned long long)c.insideEscapes,
+                  (unsigned long long)c.shadowMismatches);
+    return std::string(buf);
+  };
+  std::string surfaces;
+  for (const WatertightReport& r : reports) {
+    char iso[32];
+    std::snprintf(iso, sizeof iso, "%g", r.iso);
+    row(std::to_string(r.volume).c_str(), iso, r.counts);
+    total.add(r.counts);
+    char head[200];
+    std::snprintf(head, sizeof head, "    {\"volume\": %d, \"iso\": %.17g, \"intersector\": %s, ", r.volume, r.iso,
+                  jsonString(r.intersector).c_str());
+    surfaces += (surfaces.empty() ? "" : ",\n") + std::string(head) + counts(r.counts) + "}";
+  }
+  row("total", "", total);
+  std::printf("%.2f s; %llu errors\n", seconds, (unsigned long long)total.errors());
+  if (!flags.json.empty())
+    writeJsonFile(flags.json, "{\n  \"total\": {" + counts(total) + "},\n  \"surfaces\": [\n" + surfaces + "\n  ]\n}\n");
+  return 0;
+}
+
+int bench(const CheckFlags& flags) {
+  const SceneDesc scene = parseSceneFile(flags.scene);
+  std::vector<IntersectorSpec> specs;
+  const std::string list = flags.intersector.empty()
+                               ? "linear,neubauer:1,neubauer:2,neubauer:3,neubauer:5,neubauer:8,schwarze,"
+                                 "isolation:1,isolation:2,isolation:3,isolation:5,isolation:8,reference"
+                               : flags.intersector;
+  for (size_t start = 0; start <= list.size();) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    IntersectorSpec spec;
+    std::string error;
+    if (!parseIntersector(list.substr(start, comma - start), spec, error)) throw InputError("--intersector", "", error);
+    specs.push_back(spec);
+    start = comma + 1;
+  }
+  if (flags.rays < 1) throw InputError("--rays", "", "must be at least 1");
+  if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume to measure");
+  std::printf("bench %s: %d rays of each kind per iso-surface and intersector, single thread, seed %lld;\n"
+              "error against `reference` in cell units (misses/false hits judged by each hit's own bound)\n",
+              flags.scene.c_str(), flags.rays, flags.seed);
+  std::printf("%-7s %-9s %-10s %-12s %8s %8s %8s %10s %10s %10s %8s\n", "volume", "iso", "rays", "intersector",
+              "refHits", "misses", "false", "median|dt|", "p99|dt|", "max|dt|", "ns/ray");
+  std::string rows;
+  for (size_t v = 0; v < scene.volumes.size(); ++v) {
+    const Grid grid = loadVolume(scene.volumes[v]);
+    for (const IsoSurfaceDesc& iso : scene.volumes[v].isosurfaces)
+      for (RayKind kind : {RayKind::Camera, RayKind::Secondary})
+        for (const IntersectorSpec& spec : specs) {
+          const AccuracyReport r = measureAccuracy(grid, iso.value, spec, kind, flags.rays, uint64_t(flags.seed));
+          const char* kindName = kind == RayKind::Camera ? "camera" : "secondary";
+          std::printf("%-7zu %-9g %-10s %-12s %8llu %8llu %8llu %10.2e %10.2e %10.2e %8.0f\n", v, iso.value, kindName,
+                      intersectorName(spec).c_str(), (unsigned long long)r.referenceHits,
+                      (unsigned long long)r.misses, (unsigned long long)r.falseHits, r.medianDt, r.p99Dt, r.maxDt,
+                      r.nsPerRay);
+          std::fflush(stdout);
+          char buf[600];
+          std::snprintf(buf, sizeof buf,
+                        "    {\"volume\": %zu, \"iso\": %.17g, \"rays\": %s, \"intersector\": %s, \"count\": %llu, "
+                        "\"reference_hits\": %llu, \"tangent\": %llu, \"misses\": %llu, \"false_hits\": %llu, "
+                        "\"miss_rate\": %.6g, \"false_hit_rate\": %.6g, \"median_dt\": %.6g, \"p99_dt\": %.6g, "
+                        "\"max_dt\": %.6g, \"ns_per_ray\": %.2f}",
+                        v, iso.value, jsonString(kindName).c_str(), jsonString(intersectorName(spec)).c_str(),
+                        (unsigned long long)r.rays, (unsigned long long)r.referenceHits,
+                        (unsigned long long)r.tangentOnly, (unsigned long long)r.misses,
+                        (unsigned long long)r.falseHits, r.referenceHits ? double(r.misses) / r.referenceHits : 0.0,
+                        r.rays ? double(r.falseHits) / r.rays : 0.0, r.medianDt, r.p99Dt, r.maxDt, r.nsPerRay);
+          rows += (rows.empty() ? "" : ",\n") + std::string(buf);
+        }
+  }
+  if (!flags.json.empty()) writeJsonFile(flags.json, "{\n  \"scene\": " + jsonString(flags.scene) + ",\n  \"results\": [\n" + rows + "\n  ]\n}\n");
+  return 0;
+}
+
 }  // namespace
 
 int runCommandLine(int argc, char** argv) {
@@ -330,6 +477,22 @@ int runCommandLine(int argc, char** argv) {
   std::string infoScene;
   CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
   infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();
+  CheckFlags check, benchFlags;
+  CLI::App* watertightCmd = app.add_subcommand("watertight", "count holes and double hits of every iso-surface under secondary rays");
+  watertightCmd->add_option("scene", check.scene, "scene file (JSON)")->required();
+  watertightCmd->add_option("--rays", check.rays, "rays per test and iso-surface (default 100000)");
+  watertightCmd->add_option("--intersector", check.intersector, std::string("intersector: ") + intersectorList());
+  watertightCmd->add_option("--seed", check.seed, "random seed (default 1)");
+  watertightCmd->add_option("--offset", check.offset, "move every volume by X,Y,Z (e.g. 1e5,1e5,1e5)");
+  watertightCmd->add_option("--threads", check.threads, "worker threads (0: all cores)");
+  watertightCmd->add_option("--json", check.json, "write the counts as JSON");
+  CLI::App* benchCmd = app.add_subcommand("bench", "time per ray against error versus `reference`, per intersector");
+  benchCmd->add_option("scene", benchFlags.scene, "scene file (JSON)")->required();
+  benchFlags.rays = 20000;
+  benchCmd->add_option("--intersector", benchFlags.intersector, "comma-separated intersectors (default: all, with 1-8 iterations)");
+  benchCmd->add_option("--rays", benchFlags.rays, "rays of each kind per iso-surface and intersector (default 20000)");
+  benchCmd->add_option("--seed", benchFlags.seed, "random seed (default 1)");
+  benchCmd->add_option("--json", benchFlags.json, "write the results as JSON");
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -343,6 +506,8 @@ int runCommandLine(int argc, char** argv) {
   try {
     if (*renderCmd) return render(flags);
     if (*infoCmd) return info(infoScene);
+    if (*watertightCmd) return watertight(check);
+    if (*benchCmd) return bench(benchFlags);
   } catch (const InputError& e) {
     std::fprintf(stderr, "isotrace: %s\n", e.what());
     return 2;

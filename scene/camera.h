@@ -1,5 +1,7 @@
 #pragma once
 // Pinhole camera: vertical field of view in degrees, image plane at distance 1.
+#include <optional>
+
 #include "scene/scene.h"
 
 namespace iso {
@@ -8,6 +10,9 @@ struct Ray {
   Vec3f org, dir;
   float tnear = 0;
   float tfar = 3.4e38f;
+  // The origin in double when it has more precision than `org` (rays spawned from iso-surface
+  // hits); iso-surface queries start from it. Empty: `org` is exact.
+  std::optional<Vec3d> org64;
 };
 
 class Camera {

@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "scene/transform.h"
+#include "volume/transform.h"
 
 namespace iso {
 

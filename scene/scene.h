@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "scene/transform.h"
+#include "volume/transform.h"
 
 #include "volume/intersectors.h"
 #include "volume/loaders.h"

@@ -19,7 +19,8 @@ constexpr float gamma(int n) {
   return n * eps / (1 - n * eps);
 }
 
-Vec3f absv(const Vec3f& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
+template <typename T>
+Vec3<T> absv(const Vec3<T>& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
 
 const char* shapeName(MeshShape s) { return s == MeshShape::Sphere ? "sphere" : "quad"; }
 
@@ -317,6 +318,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
         s.material = int(m_materials.size() - 1);
       }
       s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector);
+      if (instanced) s.surface->setWorldToObject(desc.transform.inverse());
       // A surface with no active brick holds no primitive: nothing for Embree to build.
       if (!s.surface->activeBricks().empty()) {
         GeometryRecord rec;
@@ -396,6 +398,7 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   IsoRayContext context;
+  if (ray.org64) context.origin = &*ray.org64;
   RTCRayHit rh{};
   rh.ray.org_x = ray.org.x; rh.ray.org_y = ray.org.y; rh.ray.org_z = ray.org.z;
   rh.ray.dir_x = ray.dir.x; rh.ray.dir_y = ray.dir.y; rh.ray.dir_z = ray.dir.z;
@@ -417,8 +420,13 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
     hit.surface = rec.surface;
     hit.tError = context.tError;
-    hit.position = ray.org + ray.dir * hit.t;
-    hit.pError = absv(ray.dir) * hit.tError + (absv(ray.org) + absv(ray.dir * hit.t)) * gamma(3);
+    // In double from the double origin: the bound is the intersector's, plus double rounding.
+    const Vec3d org = ray.org64 ? *ray.org64 : Vec3d(ray.org), dir(ray.dir);
+    hit.position64 = org + dir * context.t;
+    hit.position = Vec3f(hit.position64);
+    const Vec3d a = absv(hit.position64);
+    const double rounding = 4 * 0x1p-52 * (std::max({a.x, a.y, a.z}) + length(dir) * std::fabs(context.t));
+    hit.pError = Vec3f(absv(dir) * double(hit.tError) + Vec3d(rounding, rounding, rounding));
     Vec3d n{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};  // object space for an instance
     if (!rec.identity) n = rec.toWorld.normal(n);
     hit.normal = Vec3f(normalize(n));
@@ -456,6 +464,7 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   if (rec.identity) {
     hit.position = pObj;
     hit.pError = errObj;
+    hit.position64 = Vec3d(pObj);
   } else {
     const Transform& t = rec.toWorld;
     hit.position = Vec3f(t.point(Vec3d(pObj)));
@@ -464,6 +473,7 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
     const Vec3f pAbs = absv(pObj);
     const float pMax = std::max({pAbs.x, pAbs.y, pAbs.z});
     hit.pError = Vec3f(rows * double(e)) + (Vec3f(rows * double(pMax)) + absv(Vec3f(trans)) + absv(hit.position)) * gamma(3);
+    hit.position64 = Vec3d(hit.position);
     ng = Vec3f(t.normal(Vec3d(ng)));
     if (length(ns) > 0) ns = Vec3f(t.normal(Vec3d(ns)));
     dpdu = Vec3f(t.vector(Vec3d(dpdu)));
@@ -484,6 +494,7 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 
 bool World::occluded(const Ray& ray, TraversalStats& stats) const {
   IsoRayContext context;
+  if (ray.org64) context.origin = &*ray.org64;
   RTCRay r{};
   r.org_x = ray.org.x; r.org_y = ray.org.y; r.org_z = ray.org.z;
   r.dir_x = ray.dir.x; r.dir_y = ray.dir.y; r.dir_z = ray.dir.z;
@@ -535,27 +546,37 @@ Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   return m.emission;
 }
 
-Vec3f offsetRayOrigin(const Hit& hit, const Vec3f& w) {
-  const Vec3f n = dot(w, hit.normal) < 0 ? -hit.normal : hit.normal;  // towards the leaving side
+Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
+  const Vec3d n(dot(w, hit.normal) < 0 ? -hit.normal : hit.normal);  // towards the leaving side
+  const Vec3d p = hit.position64;
+  const Vec3d a = absv(p);
   // pbrt rejects hits at t = 0, Embree accepts them (t >= tnear = 0): an origin must lie
   // strictly on the leaving side even where the bound is 0 (a hit on the plane y = 0 has no
-  // error in y). The floor is one float spacing at the point's magnitude, so the move is
-  // representable and never a denormal, which Embree flushes to zero.
-  const Vec3f a = absv(hit.position);
-  const float floor = std::max(std::max({a.x, a.y, a.z}) * 0x1p-23f, 1e-20f);
-  const float d = std::max(dot(absv(n), hit.pError), floor);
-  Vec3f po = hit.position + n * d;
-  // Round away from the surface.
-  for (int i = 0; i < 3; ++i) {
-    if (n[i] > 0) po[i] = std::nextafter(po[i], INFINITY);
-    else if (n[i] < 0) po[i] = std::nextafter(po[i], -INFINITY);
+  // error in y). For triangles, which Embree intersects in float, the floor is one float
+  // spacing at the point's magnitude (a representable move, never a denormal, which Embree
+  // flushes to zero); iso-surfaces are intersected from the double origin, so theirs is
+  // one double spacing.
+  const double spacing = hit.surface >= 0 ? 0x1p-52 : 0x1p-23;
+  const double floor = std::max(std::max({a.x, a.y, a.z}) * spacing, 1e-20);
+  const double d = std::max(dot(absv(n), Vec3d(hit.pError)), floor);
+  Vec3d po = p + n * d;
+  if (hit.surface < 0) {
+    // Round away from the surface in float, where Embree will see it.
+    Vec3f pf(po);
+    for (int i = 0; i < 3; ++i) {
+      if (n[i] > 0) pf[i] = std::nextafter(pf[i], INFINITY);
+      else if (n[i] < 0) pf[i] = std::nextafter(pf[i], -INFINITY);
+    }
+    po = Vec3d(pf);
   }
   return po;
 }
 
 Ray spawnRay(const Hit& hit, const Vec3f& dir) {
   Ray r;
-  r.org = offsetRayOrigin(hit, dir);
+  const Vec3d o = offsetRayOrigin(hit, dir);
+  r.org = Vec3f(o);
+  if (hit.surface >= 0) r.org64 = o;
   r.dir = dir;
   r.tnear = 0;
   return r;
@@ -563,8 +584,10 @@ Ray spawnRay(const Hit& hit, const Vec3f& dir) {
 
 Ray spawnRayTo(const Hit& hit, const Vec3f& target) {
   Ray r;
-  r.org = offsetRayOrigin(hit, target - hit.position);
-  r.dir = target - r.org;
+  const Vec3d o = offsetRayOrigin(hit, target - hit.position);
+  r.org = Vec3f(o);
+  if (hit.surface >= 0) r.org64 = o;
+  r.dir = Vec3f(Vec3d(target) - o);
   r.tnear = 0;
   r.tfar = 1 - 1e-4f;
   return r;

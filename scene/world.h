@@ -22,7 +22,9 @@ struct Hit {
   float t = 0;
   float tError = 0;   // |t - true t| <= tError (iso-surfaces; 0 for triangles)
   Vec3f position;
-  Vec3f pError;       // per-axis bound on the error of `position`
+  Vec3d position64;   // the same in double: iso-surface hits are located to double precision
+  Vec3f pError;       // per-axis bound on the error of `position64` (and of `position` to
+                      // within float rounding)
   Vec3f normal;       // geometric, unit, world space, pointing out of the solid
   Vec3f shading;      // interpolated shading normal (before normal mapping), unit
   Vec3f dpdu, dpdv;   // surface tangents along the texture coordinates (0 if none)
@@ -147,7 +149,7 @@ class World {
 // by the hit's position error bound projected on it, to the side the ray leaves to, and is
 // then rounded away from the surface. For iso-surfaces that bound comes from the
 // intersector's error bound on t; for triangles from the barycentric interpolation.
-Vec3f offsetRayOrigin(const Hit& hit, const Vec3f& w);
+Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w);
 Ray spawnRay(const Hit& hit, const Vec3f& dir);
 // A shadow ray to `target` that stops just short of it (1 - 1e-4 of the way, pbrt's
 // ShadowEpsilon, so that an area light's own surface is not an occluder).

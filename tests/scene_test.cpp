@@ -122,6 +122,23 @@ TEST(SceneFormat, EveryDocumentedKeyIsRead) {
   EXPECT_EQ(s.lights[3].file, "/scenes/sky.exr");
 }
 
+// Normals transform so that they stay perpendicular to transformed surfaces, for rotation,
+// non-uniform scale, shear and mirroring; inverse() undoes the transform.
+TEST(Transforms, NormalsStayPerpendicularAndInverseUndoes) {
+  const double rows[12] = {0.3, 1.2, -0.4, 5, -0.7, 0.2, 0.9, -2, 0.5, -0.1, 1.7, 3};
+  for (const Transform& t : {Transform::rotate(65, {1, 0, 0}), Transform::rotate(37, {1, 0.3, 0.2}) * Transform::scale({2, 0.5, 3}),
+                             Transform::fromRows(rows), Transform::scale({-1, 2, 1})}) {
+    const Vec3d a{1, 0.2, -0.3}, b{-0.4, 1, 0.7};
+    const Vec3d n = t.normal(cross(a, b));
+    EXPECT_NEAR(dot(n, t.vector(a)), 0, 1e-12);
+    EXPECT_NEAR(dot(n, t.vector(b)), 0, 1e-12);
+    EXPECT_GT(dot(normalize(n), normalize(cross(t.vector(a), t.vector(b)))) * (t.determinant() < 0 ? -1 : 1), 0.999);
+    const Vec3d p{0.3, -2, 7};
+    const Vec3d q = t.inverse().point(t.point(p));
+    EXPECT_NEAR(q.x, p.x, 1e-12); EXPECT_NEAR(q.y, p.y, 1e-12); EXPECT_NEAR(q.z, p.z, 1e-12);
+  }
+}
+
 TEST(SceneFormat, GltfCameraByNameOrIndex) {
   EXPECT_EQ(parseSceneText(R"({"camera": {"gltf_camera": "default"}})", "s.json").camera.gltfCamera, "default");
   EXPECT_EQ(parseSceneText(R"({"camera": {"gltf_camera": 2}})", "s.json").camera.gltfCamera, "#2");

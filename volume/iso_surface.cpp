@@ -98,7 +98,8 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
   RTCRay& ray = rh->ray;
   SurfaceHit hit;
-  const Vec3d org{ray.org_x, ray.org_y, ray.org_z}, dir{ray.dir_x, ray.dir_y, ray.dir_z};
+  const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray.org_x, ray.org_y, ray.org_z};
+  const Vec3d dir{ray.dir_x, ray.dir_y, ray.dir_z};
   if (!surface->intersectBrick(surface->activeBricks()[args->primID], org, dir, ray.tnear,
                                ray.tfar, hit, context->stats))
     return;
@@ -111,8 +112,9 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   rh->hit.geomID = args->geomID;
   for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
     rh->hit.instID[l] = args->context->instID[l];
-  // float(t) rounds; the bound must cover that too.
+  // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
   context->tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
+  context->t = hit.t;
 }
 
 void occludedCallback(const RTCOccludedFunctionNArguments* args) {
@@ -120,7 +122,8 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
   RTCRay* ray = reinterpret_cast<RTCRay*>(args->ray);
-  const Vec3d org{ray->org_x, ray->org_y, ray->org_z}, dir{ray->dir_x, ray->dir_y, ray->dir_z};
+  const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray->org_x, ray->org_y, ray->org_z};
+  const Vec3d dir{ray->dir_x, ray->dir_y, ray->dir_z};
   if (surface->occludedBrick(surface->activeBricks()[args->primID], org, dir, ray->tnear,
                              ray->tfar, context->stats))
     ray->tfar = -INFINITY;

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "volume/bricks.h"
+#include "volume/transform.h"
 #include "volume/traversal.h"
 
 namespace iso {
@@ -20,8 +21,13 @@ struct SurfaceHit {
 
 // Embree carries no per-hit error bound, so rays are traced with this extended context
 // (Embree's documented pattern for passing data to callbacks); the accepted hit writes it.
+// `origin`, when set, is the ray's origin in double (world space): rays spawned from an
+// iso-surface hit far from the world origin keep the precision a float origin would lose
+// (at 1e5 a float is exact to 1/128 only), and the iso-surface queries start from it.
 struct IsoRayContext {
   RTCIntersectContext embree;
+  const Vec3d* origin = nullptr;
+  double t = 0;       // the accepted iso-surface hit, in double
   float tError = 0;
   TraversalStats stats;
   IsoRayContext() { rtcInitIntersectContext(&embree); }
@@ -49,6 +55,11 @@ class IsoSurface {
   bool occludedBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
                      double tfar, TraversalStats& stats) const;
 
+  // Where the surface is placed when its geometry is instanced: world -> object space, for
+  // the double-precision origin of IsoRayContext. Identity by default.
+  void setWorldToObject(const Transform& t) { m_worldToObject = t; m_instanced = !t.isIdentity(); }
+  Vec3d objectOrigin(const Vec3d& world) const { return m_instanced ? m_worldToObject.point(world) : world; }
+
   // A user geometry (one primitive per active brick) attached to nothing; the caller owns it.
   RTCGeometry createGeometry(RTCDevice device) const;
   // World-space bounds of brick `b`, rounded outwards.
@@ -64,6 +75,8 @@ class IsoSurface {
   double m_iso;
   IntersectorSpec m_spec;
   std::vector<uint32_t> m_active;
+  Transform m_worldToObject;
+  bool m_instanced = false;
 };
 
 }  // namespace iso

@@ -1,5 +1,6 @@
 #pragma once
-// Affine transforms of scene objects (meshes, volumes, glTF nodes), kept in double so that
+// Affine transforms of scene objects (meshes, volumes, glTF nodes) and of instanced
+// iso-surfaces, kept in double so that
 // composing a glTF hierarchy with a scene transform does not lose precision.
 #include <cmath>
 #include <limits>
@@ -71,13 +72,27 @@ class Transform {
   Vec3d normal(const Vec3d& n) const {
     const Vec3d c0 = cross(col(1), col(2)), c1 = cross(col(2), col(0)), c2 = cross(col(0), col(1));
     const double sign = determinant() < 0 ? -1 : 1;
-    return Vec3d{dot(c0, n), dot(c1, n), dot(c2, n)} * sign;
+    // M^-T n = (n.x (c1 x c2) + n.y (c2 x c0) + n.z (c0 x c1)) / det.
+    return (c0 * n.x + c1 * n.y + c2 * n.z) * sign;
   }
   // The maximum over rows of sum |m_ij| (j < 3): bounds |M v| in each coordinate by |v|_inf.
   Vec3d absRowSums() const {
     return {std::fabs(m[0][0]) + std::fabs(m[0][1]) + std::fabs(m[0][2]),
             std::fabs(m[1][0]) + std::fabs(m[1][1]) + std::fabs(m[1][2]),
             std::fabs(m[2][0]) + std::fabs(m[2][1]) + std::fabs(m[2][2])};
+  }
+  // The inverse (the caller checks isFiniteInvertible()).
+  Transform inverse() const {
+    const Vec3d c0 = col(0), c1 = col(1), c2 = col(2);
+    const double det = dot(c0, cross(c1, c2));
+    const Vec3d r0 = cross(c1, c2) / det, r1 = cross(c2, c0) / det, r2 = cross(c0, c1) / det;
+    const double rows[12] = {r0.x, r0.y, r0.z, 0, r1.x, r1.y, r1.z, 0, r2.x, r2.y, r2.z, 0};
+    Transform inv = fromRows(rows);
+    const Vec3d t = inv.vector({m[0][3], m[1][3], m[2][3]});
+    inv.m[0][3] = -t.x;
+    inv.m[1][3] = -t.y;
+    inv.m[2][3] = -t.z;
+    return inv;
   }
   Vec3d col(int j) const { return {m[0][j], m[1][j], m[2][j]}; }
   double determinant() const { return dot(col(0), cross(col(1), col(2))); }
