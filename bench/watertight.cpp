@@ -23,24 +23,6 @@ void WatertightCounts::add(const WatertightCounts& o) {
 
 namespace {
 
-// The trilinear field at continuous grid coordinates, in double.
-double fieldAt(const Grid& g, const Vec3d& p) {
-  const Vec3i d = g.dims();
-  int c[3];
-  double f[3];
-  for (int a = 0; a < 3; ++a) {
-    const double x = std::clamp(p[a], 0.0, double(d[a] - 1));
-    c[a] = std::min(int(std::floor(x)), d[a] - 2);
-    f[a] = x - c[a];
-  }
-  float v[8];
-  g.cellCorners(c[0], c[1], c[2], v);
-  double r = 0;
-  for (int i = 0; i < 8; ++i)
-    r += double(v[i]) * (i & 1 ? f[0] : 1 - f[0]) * (i & 2 ? f[1] : 1 - f[1]) * (i & 4 ? f[2] : 1 - f[2]);
-  return r;
-}
-
 // The parameter range where the line o + t d lies in the box [0, hi]; false if it misses.
 bool clipToBox(const Vec3d& o, const Vec3d& d, const Vec3d& hi, double& t0, double& t1) {
   t0 = -1e300;
@@ -73,7 +55,7 @@ class SurfaceChecker {
     return (m_toGrid.point(world) - m_grid.origin()) / m_grid.spacing();
   }
   Vec3d toWorldPoint(const Vec3d& grid) const { return m_toWorld.point(grid * m_grid.spacing() + m_grid.origin()); }
-  bool inside(const Vec3d& grid) const { return fieldAt(m_grid, grid) > m_iso; }
+  bool inside(const Vec3d& grid) const { return m_grid.interpolate(grid) > m_iso; }
 
   // Crossings of the line o + t d, t in [t0, t1] (world space), by the reference intersector
   // in double, restarting just past each root.

@@ -397,8 +397,11 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
 }
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
+  // Iso-surfaces always start from the world origin in double: for an instance, Embree's own
+  // object-space origin carries the float rounding of the world origin and of the transform.
   IsoRayContext context;
-  if (ray.org64) context.origin = &*ray.org64;
+  const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  context.origin = &origin;
   RTCRayHit rh{};
   rh.ray.org_x = ray.org.x; rh.ray.org_y = ray.org.y; rh.ray.org_z = ray.org.z;
   rh.ray.dir_x = ray.dir.x; rh.ray.dir_y = ray.dir.y; rh.ray.dir_z = ray.dir.z;
@@ -493,8 +496,11 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 }
 
 bool World::occluded(const Ray& ray, TraversalStats& stats) const {
+  // Iso-surfaces always start from the world origin in double: for an instance, Embree's own
+  // object-space origin carries the float rounding of the world origin and of the transform.
   IsoRayContext context;
-  if (ray.org64) context.origin = &*ray.org64;
+  const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  context.origin = &origin;
   RTCRay r{};
   r.org_x = ray.org.x; r.org_y = ray.org.y; r.org_z = ray.org.z;
   r.dir_x = ray.dir.x; r.dir_y = ray.dir.y; r.dir_z = ray.dir.z;

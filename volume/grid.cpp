@@ -1,5 +1,8 @@
 #include "volume/grid.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <limits>
 
 namespace iso {
@@ -66,6 +69,22 @@ void Grid::range(float& lo, float& hi) const {
   std::visit([&](const auto& v) {
     for (auto x : v) { lo = std::min(lo, float(x)); hi = std::max(hi, float(x)); }
   }, m_samples);
+}
+
+double Grid::interpolate(const Vec3d& p) const {
+  int c[3];
+  double f[3];
+  for (int a = 0; a < 3; ++a) {
+    const double x = std::clamp(p[a], 0.0, double(m_dims[a] - 1));
+    c[a] = std::min(int(std::floor(x)), m_dims[a] - 2);
+    f[a] = x - c[a];
+  }
+  float v[8];
+  cellCorners(c[0], c[1], c[2], v);
+  double r = 0;
+  for (int i = 0; i < 8; ++i)
+    r += double(v[i]) * (i & 1 ? f[0] : 1 - f[0]) * (i & 2 ? f[1] : 1 - f[1]) * (i & 4 ? f[2] : 1 - f[2]);
+  return r;
 }
 
 }  // namespace iso

@@ -52,6 +52,9 @@ class Grid {
   float value(int x, int y, int z) const { return value(index(x, y, z)); }
   // The 8 corners of cell (x, y, z); corner c = bit0 x, bit1 y, bit2 z.
   void cellCorners(int x, int y, int z, float out[8]) const;
+  // The trilinear field in double at continuous grid coordinates (clamped to the grid): the
+  // exact class of a point for checks and tests.
+  double interpolate(const Vec3d& gridCoord) const;
 
   // Sum of all samples in double: a cheap fingerprint for loader tests.
   double sum() const;

@@ -1,5 +1,6 @@
 #include "volume/iso_surface.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace iso {
@@ -68,13 +69,36 @@ bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, doub
   return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, nullptr, stats);
 }
 
+void IsoSurface::setWorldToObject(const Transform& t) {
+  m_worldToObject = t;
+  m_instanced = !t.isIdentity();
+  if (!m_instanced) {
+    m_boundsPad = 0;
+    return;
+  }
+  // The grid's corners in world space bound the magnitude of world coordinates near it; a
+  // float rounds them by 2^-24 of that (several times over in Embree's transform), and the
+  // object-space size of such an error is at most that times the inverse's row sums.
+  const Transform toWorld = t.inverse();
+  const Vec3i d = m_grid.dims();
+  double worldScale = 0;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3d corner = m_grid.origin() + Vec3d{double(c & 1 ? d.x - 1 : 0), double(c & 2 ? d.y - 1 : 0),
+                                                 double(c & 4 ? d.z - 1 : 0)} * m_grid.spacing();
+    const Vec3d w = toWorld.point(corner);
+    worldScale = std::max({worldScale, std::fabs(w.x), std::fabs(w.y), std::fabs(w.z)});
+  }
+  const Vec3d rows = t.absRowSums();
+  m_boundsPad = 16 * 0x1p-24 * worldScale * std::max({rows.x, rows.y, rows.z});
+}
+
 void IsoSurface::brickBounds(uint32_t b, float lower[3], float upper[3]) const {
   const Vec3i c0 = m_bricks.cellBegin(b), c1 = m_bricks.cellEnd(b);
   const Vec3d o = m_grid.origin(), s = m_grid.spacing();
   for (int a = 0; a < 3; ++a) {
     const double lo = o[a] + c0[a] * s[a], hi = o[a] + c1[a] * s[a];
     // Outward by a relative margin: Embree's box tests are not exact, the brick clip is.
-    const double pad = 1e-5 * (hi - lo) + 1e-6 * std::max(std::fabs(lo), std::fabs(hi));
+    const double pad = 1e-5 * (hi - lo) + 1e-6 * std::max(std::fabs(lo), std::fabs(hi)) + m_boundsPad;
     lower[a] = std::nextafter(float(lo - pad), -INFINITY);
     upper[a] = std::nextafter(float(hi + pad), INFINITY);
   }

@@ -23,7 +23,8 @@ struct SurfaceHit {
 // (Embree's documented pattern for passing data to callbacks); the accepted hit writes it.
 // `origin`, when set, is the ray's origin in double (world space): rays spawned from an
 // iso-surface hit far from the world origin keep the precision a float origin would lose
-// (at 1e5 a float is exact to 1/128 only), and the iso-surface queries start from it.
+// (at 1e5 a float is exact to 1/128 only), and the iso-surface queries start from it, mapped
+// to object space in double (Embree's float instance transform would round it again).
 struct IsoRayContext {
   RTCIntersectContext embree;
   const Vec3d* origin = nullptr;
@@ -57,7 +58,10 @@ class IsoSurface {
 
   // Where the surface is placed when its geometry is instanced: world -> object space, for
   // the double-precision origin of IsoRayContext. Identity by default.
-  void setWorldToObject(const Transform& t) { m_worldToObject = t; m_instanced = !t.isIdentity(); }
+  // It also widens the brick bounds: Embree transforms the float world ray into object space,
+  // carrying the rounding of world coordinates (about 1e-7 of their size: 0.008 at 1e5)
+  // into bricks whose own coordinates are small.
+  void setWorldToObject(const Transform& t);
   Vec3d objectOrigin(const Vec3d& world) const { return m_instanced ? m_worldToObject.point(world) : world; }
 
   // A user geometry (one primitive per active brick) attached to nothing; the caller owns it.
@@ -77,6 +81,7 @@ class IsoSurface {
   std::vector<uint32_t> m_active;
   Transform m_worldToObject;
   bool m_instanced = false;
+  double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances
 };
 
 }  // namespace iso
