@@ -85,7 +85,7 @@ std::vector<StressCase> stressCases() {
   for (float& x : integers) x = float(int(u(rng) * 5));
   {  // Along faces, edges and through vertices.
     StressCase c{"faces_edges_vertices", "rays in cell faces, along cell edges and through grid vertices",
-                 floatGrid({8, 8, 8}, integers), 2.5, {}};
+                 floatGrid({8, 8, 8}, integers), 2.37, {}};  // not 2.5: with data 0..4 that gives exact double roots on diagonals
     for (int i = 0; i < n; ++i) {
       const int kind = i % 3;
       const Vec3d p{double(1 + i % 6), double(1 + (i / 6) % 6), double(1 + (i / 36) % 6)};
@@ -179,7 +179,7 @@ std::vector<StressCase> stressCases() {
   {  // Broken rays.
     StressCase c{"bad_rays", "NaN, Inf and zero directions and origins",
                  makeProceduralGrid(Field::Sphere, {17, 17, 17}), 0.5, {}};
-    const Vec3d bad[] = {{kNaN, 0, 1}, {0, kInf, 0}, {0, 0, 0}, {-kInf, kInf, 0}, {kNaN, kNaN, kNaN}, {1e-300, 0, 0}};
+    const Vec3d bad[] = {{kNaN, 0, 1}, {0, kInf, 0}, {0, 0, 0}, {-kInf, kInf, 0}, {kNaN, kNaN, kNaN}, {1e-20, 0, 0}};
     for (int i = 0; i < 600; ++i) {
       const Vec3d d = bad[i % 6];
       c.rays.push_back({Vec3d{-3, 0.1, 0.2}, d});
@@ -232,7 +232,12 @@ StressResult runStress(const StressCase& c, const IntersectorSpec& spec) {
       t1 = std::min(t1, tb);
     }
     if (!inBox || !(t0 < t1)) continue;
-    const bool in0 = c.grid.interpolate(o + d * t0) > c.iso, in1 = c.grid.interpolate(o + d * t1) > c.iso;
+    // An end on the surface (to rounding) has no class (zeros take the class of the ray before
+    // them, see volume/traversal.h): parity is undefined there.
+    const double v0 = c.grid.interpolate(o + d * t0), v1 = c.grid.interpolate(o + d * t1);
+    const double tie = 1e-12 * (std::fabs(c.iso) + std::fabs(v0) + std::fabs(v1));
+    if (std::fabs(v0 - c.iso) <= tie || std::fabs(v1 - c.iso) <= tie) continue;
+    const bool in0 = v0 > c.iso, in1 = v1 > c.iso;
     int crossings = 0;
     double t = 0;
     SurfaceHit k;

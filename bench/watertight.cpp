@@ -111,12 +111,16 @@ class SurfaceChecker {
           // The classes where this float ray (not the double line) enters and leaves.
           const Vec3d o(ray.org), d(ray.dir);
           if (clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) {
-            const bool in0 = inside(toGrid(o + d * t0)), in1 = inside(toGrid(o + d * t1));
+            const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = m_grid.interpolate(toGrid(o + d * t1));
+            const bool in0 = v0 > m_iso, in1 = v1 > m_iso;
+            // An end exactly on the surface has no class: parity is undefined for that ray.
+            const double tie = 1e-12 * (std::fabs(m_iso) + std::fabs(v0) + std::fabs(v1));
+            const bool defined = std::fabs(v0 - m_iso) > tie && std::fabs(v1 - m_iso) > tie;
             const Vec3d end = o + d * (t1 + margin);
             ray.tfar = float(t1 + margin);
             const int hits = trace(ray, end, stats);
             c.crossings += hits;
-            if ((hits % 2 == 1) != (in0 != in1)) {
+            if (defined && (hits % 2 == 1) != (in0 != in1)) {
               ++c.parityErrors;
               // Which way it went wrong: a root counted twice, or one missed (a hole).
               if (hits > referenceCrossings(o, d, 0, t1 + margin, stats)) ++c.selfHits;

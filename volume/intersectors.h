@@ -76,28 +76,46 @@ inline int isolate(const CellSegment<Real>& seg, const Cubic<Real>& cubic, Real 
 // Illinois-modified regula falsi on a bracket whose ends differ in class. Plain regula falsi
 // leaves one end fixed on convex pieces and stalls (DESIGN.md, "Known traps"); halving the
 // stale end's value restores superlinear convergence at no extra evaluations.
+//
+// Returns the final bracket as the error; `provenError` gets the bracket between the last
+// points whose value is farther from zero than the evaluation error `evalError` (their signs
+// are proven, so the root lies between them).
 template <typename Real, typename F>
-inline Root<Real> refineBracket(Real lo, Real hi, Real flo, Real fhi, int iterations, F&& f) {
+inline Root<Real> refineBracket(Real lo, Real hi, Real flo, Real fhi, int iterations, F&& f,
+                                Real evalError, Real* provenError = nullptr) {
   const bool loInside = isInside(flo);
+  Real loSafe = lo, hiSafe = hi;
   int lastSide = 0;
   for (int i = 0; i < iterations && hi > lo; ++i) {
     Real s = lo + (hi - lo) * (flo / (flo - fhi));
     if (!(s > lo && s < hi)) s = lo + Real(0.5) * (hi - lo);
     if (!(s > lo && s < hi)) break;  // the bracket is down to adjacent floats
     const Real fs = f(s);
+    const bool proven = std::fabs(fs) > evalError;
     if (isInside(fs) == loInside) {
       lo = s; flo = fs;
+      if (proven) loSafe = s;
       if (lastSide == -1) fhi *= Real(0.5);
       lastSide = -1;
     } else {
       hi = s; fhi = fs;
+      if (proven) hiSafe = s;
       if (lastSide == 1) flo *= Real(0.5);
       lastSide = 1;
     }
   }
   Real s = lo + (hi - lo) * (flo / (flo - fhi));
   if (!(s >= lo && s <= hi)) s = lo + Real(0.5) * (hi - lo);
+  if (provenError) *provenError = std::max(s - loSafe, hiSafe - s);
   return {s, std::max(s - lo, hi - s), false};
+}
+
+// The absolute error of evaluating the cell's cubic: a few ulps of the corner magnitudes.
+template <typename Real>
+inline Real evaluationError(const CellSegment<Real>& seg) {
+  Real scale = 0;
+  for (Real g : seg.g) scale += std::fabs(g);
+  return Real(32) * std::numeric_limits<Real>::epsilon() * scale;
 }
 
 // How far rounding can move a root: the cubic is evaluated with an absolute error of a few
@@ -117,6 +135,21 @@ inline Root<Real> withEvaluationBound(Root<Real> root, const CellSegment<Real>& 
                                       const Cubic<Real>& cubic) {
   root.sError += evaluationBound(seg, cubic, root.s);
   return root;
+}
+
+// The error bound of isolation and reference: the final bracket plus the first-order
+// evaluation bound (error / |f'(s)|), or the proven bracket if smaller. Both hold; the first
+// is tight at simple roots, the second next to a near-double root, where error / |f'| explodes
+// (a bound of a whole cell made restarts and spawned rays jump over the second root of a
+// close pair: a parity error found by the stress suite).
+template <typename Real>
+inline Root<Real> refineWithBound(Real lo, Real hi, Real flo, Real fhi, int iterations,
+                                  const CellSegment<Real>& seg, const Cubic<Real>& cubic) {
+  Real proven = 0;
+  const Root<Real> r = refineBracket(lo, hi, flo, fhi, iterations, cubic, evaluationError(seg), &proven);
+  Root<Real> bounded = withEvaluationBound(r, seg, cubic);
+  bounded.sError = std::min(bounded.sError, std::max(proven, r.sError));
+  return bounded;
 }
 
 }  // namespace detail
@@ -218,8 +251,7 @@ struct IsolationIntersector {
     const int n = detail::isolate(seg, cubic, s, f);
     for (int i = 0; i + 1 < n; ++i) {
       if (isInside(f[i]) != isInside(f[i + 1])) {
-        root = detail::withEvaluationBound(
-            detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], iterations, cubic), seg, cubic);
+        root = detail::refineWithBound(s[i], s[i + 1], f[i], f[i + 1], iterations, seg, cubic);
         return true;
       }
     }
@@ -250,8 +282,7 @@ struct ReferenceIntersector {
     const double touch = 16 * std::numeric_limits<double>::epsilon() * scale;
     for (int i = 0; i + 1 < n; ++i) {
       if (isInside(f[i]) != isInside(f[i + 1])) {
-        root = detail::withEvaluationBound(
-            detail::refineBracket(s[i], s[i + 1], f[i], f[i + 1], 200, cubic), seg, cubic);
+        root = detail::refineWithBound(s[i], s[i + 1], f[i], f[i + 1], 200, seg, cubic);
         return true;
       }
       if (i + 1 < n - 1 && std::fabs(f[i + 1]) <= touch) {

@@ -26,7 +26,10 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, d
       loadCell(m_grid, cellHit.cell, Real(m_iso), g);
       const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
       const double len = length(grad);
-      hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir));
+      // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
+      // a tiny direction does not underflow to a NaN.
+      const double dirScale = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
+      hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir / dirScale));
       hit->t = double(cellHit.t);
       hit->tError = double(cellHit.tError);
       hit->tangent = cellHit.tangent;

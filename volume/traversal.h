@@ -111,6 +111,41 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
 
   Real ta = t0;
   int enterAxis = entryAxis;
+  // Exact zeros (a face or edge whose value is exactly the iso value, common with integer
+  // data and integer iso values) take the class the ray had just before them: a crossing is
+  // a change between strictly inside and strictly outside. Without this, a ray that touches
+  // such a face from inside counts one crossing (inside -> zero) where there are zero or two,
+  // and neither a restart nor a spawned ray can recover the pairing (DESIGN.md, "Known
+  // traps"). `carried` stands in for an exact zero at the start of the next segment; a ray
+  // starts outside, by the convention that zero is not inside.
+  const Real tiny = std::numeric_limits<Real>::denorm_min();
+  Real carried = -tiny;
+  // Entering through a face exactly on the surface (a brick seam, a restart at a face), the
+  // class is the one the ray had in the cell behind that face, as a traversal through it
+  // would have carried it; without this a crossing through an exact zero on a brick seam
+  // was seen by neither brick.
+  if (entryAxis >= 0) {
+    Vec3i prev = cell;
+    prev[entryAxis] -= step[entryAxis];
+    const Vec3i dims = grid.dims();
+    if (prev[entryAxis] >= 0 && prev[entryAxis] <= dims[entryAxis] - 2) {
+      CellSegment<Real> here;
+      loadCell(grid, cell, iso, here.g);
+      const Vec3<Real> a = localAt(t0, entryAxis, faceValue(entryAxis, true));
+      if (trilinear(here.g, a) == Real(0)) {
+        CellSegment<Real> behind;
+        loadCell(grid, prev, iso, behind.g);
+        behind.b = a;
+        behind.b[entryAxis] = Real(1) - a[entryAxis];
+        behind.a = behind.b - ray.dir;
+        const Cubic<Real> c = cellCubic(behind);
+        const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
+        const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
+        const Real side = d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : -c.c[3];
+        if (side > Real(0)) carried = tiny;
+      }
+    }
+  }
   for (;;) {
     ++stats.cellsVisited;
     int m = 0;
@@ -123,14 +158,36 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
 
     CellSegment<Real> seg;
     loadCell(grid, cell, iso, seg.g);
-    bool anyIn = false, anyOut = false;
-    for (int i = 0; i < 8; ++i) (isInside(seg.g[i]) ? anyIn : anyOut) = true;
-    if (anyIn && anyOut) {
+    int positive = 0, negative = 0;
+    for (int i = 0; i < 8; ++i) {
+      positive += seg.g[i] > Real(0);
+      negative += seg.g[i] < Real(0);
+    }
+    // Cells that cannot change the class are stepped over: one strict sign, or zeros with
+    // values only on the side the ray is already on.
+    const bool carriedIn = carried > Real(0);
+    if (positive == 8) {
+      carried = tiny;
+    } else if (negative == 8) {
+      carried = -tiny;
+    } else if ((negative == 0 && (positive == 0 || carriedIn)) || (positive == 0 && !carriedIn)) {
+      // the carried class stands
+    } else {
       ++stats.cellsSolved;
       seg.a = localAt(ta, enterAxis, enterAxis >= 0 ? faceValue(enterAxis, true) : Real(0));
       seg.b = localAt(tb, leaveAxis, leaveAxis >= 0 ? faceValue(leaveAxis, false) : Real(0));
       seg.f0 = trilinear(seg.g, seg.a);
       seg.f1 = trilinear(seg.g, seg.b);
+      if (seg.f0 == Real(0)) seg.f0 = carried;
+      if (seg.f1 == Real(0)) {
+        // The side the ray comes from: the first non-zero of -df, d2f, -d3f at s = 1.
+        const Cubic<Real> c = cellCubic(seg);
+        const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
+        const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
+        const Real side = d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : seg.f0;
+        seg.f1 = side > Real(0) ? tiny : -tiny;
+      }
+      carried = seg.f1 > Real(0) ? tiny : -tiny;
       if constexpr (AnyHit) {
         if (solver.any(seg)) return true;
       } else {
