@@ -49,7 +49,11 @@ Vec3i BrickGrid::cellEnd(uint32_t b) const {
 std::vector<uint32_t> BrickGrid::activeBricks(float iso) const {
   std::vector<uint32_t> active;
   for (uint32_t b = 0; b < m_lo.size(); ++b)
-    if (m_lo[b] <= iso && m_hi[b] > iso) active.push_back(b);
+    // A brick whose largest value equals the iso value can still hold a crossing: a ray
+    // that was inside leaves the surface on its boundary, where the value is exactly iso
+    // (volume/traversal.h carries the class across exact zeros). A brick entirely at the
+    // iso value cannot change the class and stays out.
+    if (m_lo[b] <= iso && m_hi[b] >= iso && !(m_lo[b] == iso && m_hi[b] == iso)) active.push_back(b);
   return active;
 }
 

@@ -20,7 +20,8 @@ class BrickGrid {
   // The cell range [begin, end) of brick b.
   Vec3i cellBegin(uint32_t b) const;
   Vec3i cellEnd(uint32_t b) const;
-  // Bricks that can hold a crossing of `iso` (min <= iso < max with inside meaning > iso).
+  // Bricks that can hold a crossing of `iso`: min <= iso <= max, not all equal to iso (inside
+  // means > iso; a brick whose max is iso holds a crossing on its boundary).
   std::vector<uint32_t> activeBricks(float iso) const;
   size_t bytes() const { return m_lo.size() * 2 * sizeof(float); }
 
