@@ -16,5 +16,9 @@ if [ $has_output -eq 0 ]; then
   name=$(basename "$scene"); name=${name%.json}
   args+=(-o "out/$name.png")
 fi
-image=$(./build/isotrace render "$scene" "${args[@]}")
-echo "isotrace: image written to $image"
+images=$(./build/isotrace render "$scene" "${args[@]}")
+if [ "$(printf '%s\n' "$images" | wc -l)" -gt 1 ]; then
+  echo "isotrace: images written to:"; printf '  %s\n' $images
+else
+  echo "isotrace: image written to $images"
+fi
