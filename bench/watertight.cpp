@@ -103,7 +103,7 @@ class SurfaceChecker {
         const Vec3d gd = toGrid(wa + Vec3d(dir)) - toGrid(wa);
         double t0, t1;
         if (clipToBox(toGrid(wa), gd, m_hi, t0, t1)) {
-          const Vec3d wEntry = wa + Vec3d(dir) * t0, wExit = wa + Vec3d(dir) * t1;
+          const Vec3d wEntry = wa + Vec3d(dir) * t0;
           const double margin = 0.05 * (t1 - t0) + 1e-3;
           Ray ray;
           ray.org = Vec3f(wEntry - Vec3d(dir) * margin);
@@ -126,7 +126,6 @@ class SurfaceChecker {
               if (hits > referenceCrossings(o, d, 0, t1 + margin, stats)) ++c.selfHits;
             }
           }
-          (void)wExit;
         }
       }
     }

@@ -13,10 +13,8 @@ class NormalsIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
   void Li(const Ray& ray, Sampler&, RayCounters& counters, SampleResult& out) const override {
-    ++counters.camera;
     Hit hit;
-    if (!m_world.intersect(ray, hit, counters.traversal)) return;
-    recordFirstHit(ray, hit, out);
+    if (!traceCameraRay(ray, hit, counters, out)) return;
     out.L = hit.shading;
   }
   bool signedOutput() const override { return true; }
@@ -28,10 +26,8 @@ class EyelightIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
   void Li(const Ray& ray, Sampler&, RayCounters& counters, SampleResult& out) const override {
-    ++counters.camera;
     Hit hit;
-    if (!m_world.intersect(ray, hit, counters.traversal)) return;
-    recordFirstHit(ray, hit, out);
+    if (!traceCameraRay(ray, hit, counters, out)) return;
     const float cosine = std::fabs(dot(hit.shading, normalize(ray.dir)));
     out.L = m_world.albedo(hit) * (0.1f + 0.9f * cosine) + m_world.emitted(hit, -normalize(ray.dir));
   }
@@ -43,10 +39,8 @@ class AmbientOcclusionIntegrator final : public Integrator {
  public:
   AmbientOcclusionIntegrator(const World& world, float distance) : Integrator(world), m_distance(distance) {}
   void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override {
-    ++counters.camera;
     Hit hit;
-    if (!m_world.intersect(ray, hit, counters.traversal)) return;
-    recordFirstHit(ray, hit, out);
+    if (!traceCameraRay(ray, hit, counters, out)) return;
     const Vec3f wo = -normalize(ray.dir);
     const Vec3f n = dot(hit.shading, wo) < 0 ? -hit.shading : hit.shading;
     const Frame frame = Frame::fromNormal(n, hit.dpdu);

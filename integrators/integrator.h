@@ -60,6 +60,13 @@ class Integrator {
   virtual bool splitsDirect() const { return false; }
 
  protected:
+  // The camera ray of a one-hit integrator: counted, traced, its AOVs recorded.
+  bool traceCameraRay(const Ray& ray, Hit& hit, RayCounters& counters, SampleResult& out) const {
+    ++counters.camera;
+    if (!m_world.intersect(ray, hit, counters.traversal)) return false;
+    recordFirstHit(ray, hit, out);
+    return true;
+  }
   void recordFirstHit(const Ray& ray, const Hit& hit, SampleResult& out) const {
     out.albedo = m_world.albedo(hit);
     out.normal = hit.shading;

@@ -286,7 +286,6 @@ class Reader {
       mesh.uvs.resize(tv.count);
       for (size_t k = 0; k < tv.count; ++k) mesh.uvs[k] = {float(tv.get(k, 0)), float(tv.get(k, 1))};
     }
-    if (attribute("JOINTS_0") >= 0 && !m_model.skins.empty()) {}  // warned with the skins
     std::vector<uint32_t> order;
     if (p.indices >= 0) {
       const View iv = accessor(p.indices, at + "/indices",
@@ -443,7 +442,6 @@ class Reader {
         fail("/extensions/KHR_lights_punctual/lights/" + std::to_string(li) + "/type", "unknown light type '" + gl.type + "'");
       }
       if (gl.range > 0) warnOnce("light range is ignored (lights fall off with the inverse square law)");
-      m_lightsUsed = true;
       m_out.lights.push_back(l);
     }
     for (int child : n.children) visit(child, t, onPath, seen, at + "/children");
@@ -517,7 +515,6 @@ class Reader {
   const tinygltf::Model& m_model;
   GltfModel& m_out;
   std::set<std::string> m_warned;
-  bool m_lightsUsed = false;
 };
 
 }  // namespace

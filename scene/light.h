@@ -51,7 +51,8 @@ class Light {
   // area (the point `y` with normal `ny` that the ray reached).
   float pdfEnvironment(const Vec3f& wi) const;
   float pdfArea(const Vec3f& p, const Vec3f& y, const Vec3f& ny) const;
-  Vec3f environment(const Vec3f& dir) const;  // radiance arriving from direction -dir... along dir
+  // Radiance arriving at the scene along -dir, i.e. seen by a ray that escapes in direction dir.
+  Vec3f environment(const Vec3f& dir) const;
   size_t triangleCount() const { return m_triangles.size() / 3; }
   double area() const { return m_areas.total(); }
   // The radiance an area light emits at barycentrics of triangle `tri` towards `w` (unit).
