@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <sstream>
 
 #include "tests/test_util.h"
 
@@ -200,6 +201,30 @@ TEST(Cli, StatsJsonAndAovLayers) {
   const auto bad = runIsotrace("render " + dir + "/m.json --aov depth,shadows -o " + dir + "/b.exr");
   EXPECT_EQ(bad.status, 2);
   EXPECT_NE(bad.err.find("unknown layer 'shadows'"), std::string::npos) << bad.err;
+}
+
+// The progress bar shows on a terminal (faked with util-linux `script`), not in a pipe or
+// a file, and never with --quiet.
+TEST(Cli, ProgressBarOnlyOnATerminal) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const std::string render = std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 256 --resolution 128x96 -o " + dir + "/p.png";
+  auto onTerminal = [&](const std::string& extra) {
+    const std::string cmd = "script -qec '" + render + extra + "' /dev/null > " + dir + "/tty.txt 2>&1";
+    EXPECT_EQ(std::system(cmd.c_str()), 0);
+    std::ifstream in(dir + "/tty.txt");
+    std::stringstream text;
+    text << in.rdbuf();
+    return text.str();
+  };
+  const std::string shown = onTerminal("");
+  EXPECT_NE(shown.find("100.0%"), std::string::npos) << shown;
+  EXPECT_NE(shown.find("ETA"), std::string::npos) << shown;
+  EXPECT_EQ(onTerminal(" --quiet").find("ETA"), std::string::npos);
+  const auto piped = runIsotrace("render " + dir + "/m.json --integrator path --spp 256 --resolution 128x96 -o " + dir + "/p.png");
+  EXPECT_EQ(piped.status, 0);
+  EXPECT_EQ(piped.err.find("ETA"), std::string::npos) << piped.err;
+  EXPECT_NE(piped.err.find("rays:"), std::string::npos) << piped.err;  // the summary still is
 }
 
 // Ctrl-C stops at the next tile boundary, writes what is finished, and exits with 130.
