@@ -22,6 +22,19 @@ constexpr float gamma(int n) {
 template <typename T>
 Vec3<T> absv(const Vec3<T>& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
 
+// Iso-surface queries start from the ray's origin in double (World::intersect and occluded
+// pass it in the IsoRayContext): for an instance, Embree's own object-space origin carries
+// the float rounding of the world origin and of the transform.
+RTCRay toEmbree(const Ray& ray) {
+  RTCRay r{};
+  r.org_x = ray.org.x; r.org_y = ray.org.y; r.org_z = ray.org.z;
+  r.dir_x = ray.dir.x; r.dir_y = ray.dir.y; r.dir_z = ray.dir.z;
+  r.tnear = ray.tnear;
+  r.tfar = ray.tfar;
+  r.mask = 0xffffffff;
+  return r;
+}
+
 const char* shapeName(MeshShape s) { return s == MeshShape::Sphere ? "sphere" : "quad"; }
 
 // The triangles of a mesh in world space, three vertices each (for area lights).
@@ -397,17 +410,11 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
 }
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
-  // Iso-surfaces always start from the world origin in double: for an instance, Embree's own
-  // object-space origin carries the float rounding of the world origin and of the transform.
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;
   RTCRayHit rh{};
-  rh.ray.org_x = ray.org.x; rh.ray.org_y = ray.org.y; rh.ray.org_z = ray.org.z;
-  rh.ray.dir_x = ray.dir.x; rh.ray.dir_y = ray.dir.y; rh.ray.dir_z = ray.dir.z;
-  rh.ray.tnear = ray.tnear;
-  rh.ray.tfar = ray.tfar;
-  rh.ray.mask = 0xffffffff;
+  rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(m_scene, &context.embree, &rh);
@@ -496,17 +503,10 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 }
 
 bool World::occluded(const Ray& ray, TraversalStats& stats) const {
-  // Iso-surfaces always start from the world origin in double: for an instance, Embree's own
-  // object-space origin carries the float rounding of the world origin and of the transform.
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;
-  RTCRay r{};
-  r.org_x = ray.org.x; r.org_y = ray.org.y; r.org_z = ray.org.z;
-  r.dir_x = ray.dir.x; r.dir_y = ray.dir.y; r.dir_z = ray.dir.z;
-  r.tnear = ray.tnear;
-  r.tfar = ray.tfar;
-  r.mask = 0xffffffff;
+  RTCRay r = toEmbree(ray);
   rtcOccluded1(m_scene, &context.embree, &r);
   stats.cellsVisited += context.stats.cellsVisited;
   stats.cellsSolved += context.stats.cellsSolved;

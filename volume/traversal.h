@@ -59,6 +59,15 @@ inline void loadCell(const Grid& grid, const Vec3i& c, Real iso, Real g[8]) {
   for (int i = 0; i < 8; ++i) g[i] = Real(v[i]) - iso;
 }
 
+// Where a segment's cubic ends exactly at zero (s = 1), the side it comes from: the sign of
+// the first non-zero of -df, d2f, -d3f at s = 1; `flat` if the cubic is constant.
+template <typename Real>
+inline Real approachSide(const Cubic<Real>& c, Real flat) {
+  const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
+  const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
+  return d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : flat;
+}
+
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 template <bool AnyHit, typename Real, typename Intersector>
@@ -123,29 +132,22 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
   // Entering through a face exactly on the surface (a brick seam, a restart at a face), the
   // class is the one the ray had in the cell behind that face, as a traversal through it
   // would have carried it; without this a crossing through an exact zero on a brick seam
-  // was seen by neither brick.
-  if (entryAxis >= 0) {
+  // was seen by neither brick. Only the first cell needs it, and only if it is not of one
+  // strict sign, so it is worked out there, from that cell's values.
+  bool entryPending = entryAxis >= 0;
+  auto classBehindEntry = [&](const Real g[8]) {
     Vec3i prev = cell;
     prev[entryAxis] -= step[entryAxis];
-    const Vec3i dims = grid.dims();
-    if (prev[entryAxis] >= 0 && prev[entryAxis] <= dims[entryAxis] - 2) {
-      CellSegment<Real> here;
-      loadCell(grid, cell, iso, here.g);
-      const Vec3<Real> a = localAt(t0, entryAxis, faceValue(entryAxis, true));
-      if (trilinear(here.g, a) == Real(0)) {
-        CellSegment<Real> behind;
-        loadCell(grid, prev, iso, behind.g);
-        behind.b = a;
-        behind.b[entryAxis] = Real(1) - a[entryAxis];
-        behind.a = behind.b - ray.dir;
-        const Cubic<Real> c = cellCubic(behind);
-        const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
-        const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
-        const Real side = d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : -c.c[3];
-        if (side > Real(0)) carried = tiny;
-      }
-    }
-  }
+    if (prev[entryAxis] < 0 || prev[entryAxis] > grid.dims()[entryAxis] - 2) return carried;
+    const Vec3<Real> a = localAt(t0, entryAxis, faceValue(entryAxis, true));
+    if (trilinear(g, a) != Real(0)) return carried;
+    CellSegment<Real> behind;
+    loadCell(grid, prev, iso, behind.g);
+    behind.b = a;
+    behind.b[entryAxis] = Real(1) - a[entryAxis];
+    behind.a = behind.b - ray.dir;
+    return approachSide(cellCubic(behind), carried) > Real(0) ? tiny : -tiny;
+  };
   for (;;) {
     ++stats.cellsVisited;
     int m = 0;
@@ -165,6 +167,10 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
     }
     // Cells that cannot change the class are stepped over: one strict sign, or zeros with
     // values only on the side the ray is already on.
+    if (entryPending) {
+      entryPending = false;
+      if (positive != 8 && negative != 8) carried = classBehindEntry(seg.g);
+    }
     const bool carriedIn = carried > Real(0);
     if (positive == 8) {
       carried = tiny;
@@ -179,14 +185,7 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
       seg.f0 = trilinear(seg.g, seg.a);
       seg.f1 = trilinear(seg.g, seg.b);
       if (seg.f0 == Real(0)) seg.f0 = carried;
-      if (seg.f1 == Real(0)) {
-        // The side the ray comes from: the first non-zero of -df, d2f, -d3f at s = 1.
-        const Cubic<Real> c = cellCubic(seg);
-        const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
-        const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
-        const Real side = d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : seg.f0;
-        seg.f1 = side > Real(0) ? tiny : -tiny;
-      }
+      if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.f0) > Real(0) ? tiny : -tiny;
       carried = seg.f1 > Real(0) ? tiny : -tiny;
       if constexpr (AnyHit) {
         if (solver.any(seg)) return true;
