@@ -92,16 +92,21 @@ TEST(Render, NormalsAreExactlyZeroOnMissesAndUnitOnHits) {
   EXPECT_LT(hits, 64 * 48);
 }
 
-TEST(Render, SameImageBitsWithOneAndTwoThreads) {
-  SceneDesc scene = sphereScene(32, 0.5);
+// Renders `scene` with 1 and with 2 threads and requires the same bits in every pixel.
+void expectSameBitsWithOneAndTwoThreads(const SceneDesc& scene, const std::string& integratorName, int w, int h,
+                                        int spp, uint64_t seed) {
   World world(scene, {});
-  Camera camera(scene.camera, 48, 40);
-  auto integrator = makeIntegrator("eyelight", world);
-  Film one(48, 40), two(48, 40);
-  renderFrame(camera, *integrator, options(3, 11, 1), one);
-  renderFrame(camera, *integrator, options(3, 11, 2), two);
-  for (int y = 0; y < 40; ++y)
-    for (int x = 0; x < 48; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
+  Camera camera(world.camera(), w, h);
+  auto integrator = makeIntegrator(integratorName, world, scene.settings);
+  Film one(w, h), two(w, h);
+  renderFrame(camera, *integrator, options(spp, seed, 1), one);
+  renderFrame(camera, *integrator, options(spp, seed, 2), two);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
+}
+
+TEST(Render, SameImageBitsWithOneAndTwoThreads) {
+  expectSameBitsWithOneAndTwoThreads(sphereScene(32, 0.5), "eyelight", 48, 40, 3, 11);
 }
 
 TEST(Render, PathTracingIsTheSameWithOneAndTwoThreads) {
@@ -114,14 +119,7 @@ TEST(Render, PathTracingIsTheSameWithOneAndTwoThreads) {
     "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}]})",
                                    "threads.json");
   scene.settings.maxDepth = 12;
-  World world(scene, {});
-  Camera camera(world.camera(), 40, 30);
-  auto integrator = makeIntegrator("path", world, scene.settings);
-  Film one(40, 30), two(40, 30);
-  renderFrame(camera, *integrator, options(8, 5, 1), one);
-  renderFrame(camera, *integrator, options(8, 5, 2), two);
-  for (int y = 0; y < 30; ++y)
-    for (int x = 0; x < 40; ++x) ASSERT_EQ(one.at(x, y), two.at(x, y)) << x << "," << y;
+  expectSameBitsWithOneAndTwoThreads(scene, "path", 40, 30, 8, 5);
 }
 
 // The Cornell example at 48x36 against a stored reference (tests/data/cornell_torus_ref.exr,
