@@ -238,14 +238,17 @@ StressResult runStress(const StressCase& c, const IntersectorSpec& spec) {
     const double tie = 1e-12 * (std::fabs(c.iso) + std::fabs(v0) + std::fabs(v1));
     if (std::fabs(v0 - c.iso) <= tie || std::fabs(v1 - c.iso) <= tie) continue;
     const bool in0 = v0 > c.iso, in1 = v1 > c.iso;
+    // Each restart starts in the class the last crossing led to, as a spawned ray does.
     int crossings = 0;
     double t = 0;
+    StartClass start = StartClass::Unknown;
     SurfaceHit k;
-    while (crossings < 100000 && tested.intersect(ray.org, ray.dir, t, kInf, k, stats)) {
+    while (crossings < 100000 && tested.intersect(ray.org, ray.dir, t, kInf, k, stats, start)) {
       ++crossings;
       const double next = k.t + std::max(k.tError, std::fabs(k.t) * 1e-15 + 1e-300);
       if (!(next > t)) break;
       t = next;
+      start = k.insideAfter ? StartClass::Inside : StartClass::Outside;
     }
     if ((crossings % 2 == 1) != (in0 != in1)) ++r.parityErrors;
   }

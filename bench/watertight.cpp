@@ -71,19 +71,34 @@ class SurfaceChecker {
     return n;
   }
 
-  // Hits from `ray` to its tfar, each next ray spawned from the last hit.
-  int trace(Ray ray, const Vec3d& end, TraversalStats& stats) const {
+  // Hits from `ray` to its tfar, each next ray spawned from the last hit and continued to
+  // the plane through `end` across the ray (the spawned origins leave the line by their
+  // offsets), or without end if `end` is null; `last` gets the chain's last ray.
+  int trace(Ray ray, const Vec3d* end, TraversalStats& stats, Ray* last = nullptr) const {
     Hit hit;
     int hits = 0;
     while (hits < 100000 && m_world.intersect(ray, hit, stats)) {
       ++hits;
       ray = spawnRay(hit, ray.dir);
-      // Continue to the same end point (the spawned origin moved off the line by the offset).
-      const Vec3d rest = end - (ray.org64 ? *ray.org64 : Vec3d(ray.org));
-      if (dot(rest, Vec3d(ray.dir)) <= 0) break;
-      ray.tfar = float(dot(rest, Vec3d(ray.dir)));
+      if (end) {
+        const float rest = float(dot(*end - (ray.org64 ? *ray.org64 : Vec3d(ray.org)), Vec3d(ray.dir)));
+        if (!(rest > 0)) break;
+        ray.tfar = rest;
+      }
     }
+    if (last) *last = ray;
     return hits;
+  }
+
+  // Where a ray leaves the box, in grid coordinates; false if it does not, or starts outside it
+  // after a hit (spawned past the boundary).
+  bool exitPoint(const Ray& ray, bool spawned, Vec3d& exit) const {
+    const Vec3d o = toGrid(ray.org64 ? *ray.org64 : Vec3d(ray.org));
+    const Vec3d d = toGrid((ray.org64 ? *ray.org64 : Vec3d(ray.org)) + Vec3d(ray.dir)) - o;
+    double t0, t1;
+    if (!clipToBox(o, d, m_hi, t0, t1) || t1 < 0 || (spawned && t0 > 0)) return false;
+    exit = o + d * t1;
+    return true;
   }
 
   void one(std::mt19937_64& rng, WatertightCounts& c, TraversalStats& stats) const {
@@ -108,18 +123,22 @@ class SurfaceChecker {
           Ray ray;
           ray.org = Vec3f(wEntry - Vec3d(dir) * margin);
           ray.dir = dir;
-          // The classes where this float ray (not the double line) enters and leaves.
+          // The classes where the chain of rays enters and leaves the box: where this float ray
+          // (not the double line) enters, and where the chain's last ray leaves (each spawned
+          // ray starts off the line by its offset, so the chain drifts from it a little).
           const Vec3d o(ray.org), d(ray.dir);
           if (clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) {
-            const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = m_grid.interpolate(toGrid(o + d * t1));
+            ray.tfar = float(t1 + margin);
+            Ray last;
+            const int hits = trace(ray, nullptr, stats, &last);
+            c.crossings += hits;
+            Vec3d exit;
+            const bool leaves = exitPoint(last, hits > 0, exit);
+            const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
             const bool in0 = v0 > m_iso, in1 = v1 > m_iso;
             // An end exactly on the surface has no class: parity is undefined for that ray.
             const double tie = 1e-12 * (std::fabs(m_iso) + std::fabs(v0) + std::fabs(v1));
             const bool defined = std::fabs(v0 - m_iso) > tie && std::fabs(v1 - m_iso) > tie;
-            const Vec3d end = o + d * (t1 + margin);
-            ray.tfar = float(t1 + margin);
-            const int hits = trace(ray, end, stats);
-            c.crossings += hits;
             if (defined && (hits % 2 == 1) != (in0 != in1)) {
               ++c.parityErrors;
               // Which way it went wrong: a root counted twice, or one missed (a hole).
@@ -157,7 +176,8 @@ class SurfaceChecker {
         const float len = length(ray.dir);
         ray.dir = ray.dir / len;
         ray.tfar = len;
-        const int hits = trace(ray, Vec3d(shadow.org) + Vec3d(shadow.dir), stats);
+        const Vec3d end = Vec3d(shadow.org) + Vec3d(shadow.dir);
+        const int hits = trace(ray, &end, stats);
         const bool differ = inside(toGrid(Vec3d(shadow.org))) != inside(toGrid(Vec3d(shadow.org) + Vec3d(shadow.dir)));
         if (occluded != (hits > 0 || differ)) ++c.shadowMismatches;
       }

@@ -3,10 +3,13 @@
 // a scene, alone in its own world, traced the way the path tracer traces it — each ray
 // continues from its last hit through the renderer's own spawnRay().
 //
-// - parity: a random line through the volume's box, entered from outside; the number of hits
-//   up to the exit must be odd exactly when the field's class (value > iso) differs at the
-//   entry and exit points (evaluated in double). A mismatch is a hole or a double count.
-// - self hit: a hit within the two hits' position error bounds of the previous one.
+// - parity: a random line through the volume's box, entered from outside and followed by
+//   spawned rays until the chain leaves the box; the number of hits must be odd exactly when
+//   the field's class (value > iso) differs where the chain enters and where its last ray
+//   leaves the box (evaluated in double; each spawned ray starts off the line by its offset,
+//   so the chain drifts from it a little). A mismatch is a hole or a double count.
+// - self hit: a parity error with more hits than the double-precision reference finds on
+//   the line.
 // - inside escape: a ray from a random point whose class differs from the class where the ray
 //   leaves the box must hit; one that reports nothing escaped through a hole.
 // - shadow mismatch: the occlusion query between two random points disagrees with the

@@ -409,10 +409,86 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
   return m_top[hit.geomID];
 }
 
-bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
+// The iso-surface hit at `t` on `ray`; `normal` in the surface's object space.
+void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal,
+                       bool insideAfter, Hit& hit) const {
+  const SurfaceInfo& info = m_surfaces[surface];
+  hit.t = float(t);
+  hit.material = info.material;
+  hit.surface = surface;
+  hit.tError = tError;
+  hit.insideAfter = insideAfter;
+  // In double from the double origin: the bound is the intersector's, plus double rounding.
+  const Vec3d org = ray.org64 ? *ray.org64 : Vec3d(ray.org), dir(ray.dir);
+  hit.position64 = org + dir * t;
+  hit.position = Vec3f(hit.position64);
+  const Vec3d a = absv(hit.position64);
+  const double rounding = 4 * 0x1p-52 * (std::max({a.x, a.y, a.z}) + length(dir) * std::fabs(t));
+  hit.pError = Vec3f(absv(dir) * double(tError) + Vec3d(rounding, rounding, rounding));
+  const Transform& toWorld = m_volumes[info.volume].transform;
+  if (!toWorld.isIdentity()) normal = toWorld.normal(normal);
+  hit.normal = Vec3f(normalize(normal));
+  if (!info.solidAbove) hit.normal = -hit.normal;
+  hit.shading = hit.normal;
+}
+
+// A ray leaving an iso-surface whose origin lies in an inactive brick of that surface: no
+// brick query sees that cell (IsoSurface::crossesAtInactiveStart).
+bool World::crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const {
+  if (ray.fromSurface < 0) return false;
+  const IsoSurface& surface = *m_surfaces[ray.fromSurface].surface;
+  const Vec3d org = surface.objectOrigin(ray.org64 ? *ray.org64 : Vec3d(ray.org));
+  const Vec3d dir = surface.objectDirection(Vec3d(ray.dir));
+  const StartClass start = ray.fromInside ? StartClass::Inside : StartClass::Outside;
+  SurfaceHit sh;
+  if (!surface.crossesAtInactiveStart(org, dir, ray.tnear, ray.tfar, start, hit ? &sh : nullptr, stats))
+    return false;
+  if (hit) {
+    *hit = Hit();
+    hit->incoming = ray.dir;
+    fillIsoHit(ray, ray.fromSurface, sh.t, float(sh.tError), Vec3d(sh.normal), sh.insideAfter, *hit);
+  }
+  return true;
+}
+
+// A ray leaving an iso-surface hit near its volume's box can start just outside the box (the
+// spawn offset points out of it). Its start class applies where it meets the field, so its
+// origin moves back onto the box, by at most that offset; Embree then traces the same line as
+// the iso-surface queries (IsoSurface moves what rounding leaves outside).
+Ray World::startInsideVolume(const Ray& ray) const {
+  if (ray.fromSurface < 0) return ray;
+  const SurfaceInfo& info = m_surfaces[ray.fromSurface];
+  const VolumeInfo& volume = m_volumes[info.volume];
+  const Grid& grid = *volume.grid;
+  const Vec3d world = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  const Vec3d o = info.surface->objectOrigin(world);
+  const Vec3d lo = grid.origin();
+  const Vec3d hi = lo + Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
+  const Vec3d c{std::clamp(o.x, lo.x, hi.x), std::clamp(o.y, lo.y, hi.y), std::clamp(o.z, lo.z, hi.z)};
+  if (c == o || !isFinite(o)) return ray;
+  Ray moved = ray;
+  moved.org64 = volume.transform.isIdentity() ? c : volume.transform.point(c);
+  moved.org = Vec3f(*moved.org64);
+  return moved;
+}
+
+namespace {
+
+void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, IsoRayContext& context) {
+  if (ray.fromSurface < 0) return;
+  context.startSurface = surfaces[ray.fromSurface].surface.get();
+  context.start = ray.fromInside ? StartClass::Inside : StartClass::Outside;
+}
+
+}  // namespace
+
+bool World::intersect(const Ray& spawned, Hit& hit, TraversalStats& stats) const {
+  const Ray ray = startInsideVolume(spawned);
+  if (crossesAtInactiveStart(ray, &hit, stats)) return true;
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;
+  startFromSurface(ray, m_surfaces, context);
   RTCRayHit rh{};
   rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
@@ -424,26 +500,15 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   const GeometryRecord& rec = recordOf(rh.hit);
   hit = Hit();
-  hit.t = rh.ray.tfar;
-  hit.material = rec.material;
+  hit.incoming = ray.dir;
   if (!rec.mesh) {
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
-    hit.surface = rec.surface;
-    hit.tError = context.tError;
-    // In double from the double origin: the bound is the intersector's, plus double rounding.
-    const Vec3d org = ray.org64 ? *ray.org64 : Vec3d(ray.org), dir(ray.dir);
-    hit.position64 = org + dir * context.t;
-    hit.position = Vec3f(hit.position64);
-    const Vec3d a = absv(hit.position64);
-    const double rounding = 4 * 0x1p-52 * (std::max({a.x, a.y, a.z}) + length(dir) * std::fabs(context.t));
-    hit.pError = Vec3f(absv(dir) * double(hit.tError) + Vec3d(rounding, rounding, rounding));
-    Vec3d n{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};  // object space for an instance
-    if (!rec.identity) n = rec.toWorld.normal(n);
-    hit.normal = Vec3f(normalize(n));
-    if (!m_surfaces[rec.surface].solidAbove) hit.normal = -hit.normal;
-    hit.shading = hit.normal;
+    fillIsoHit(ray, rec.surface, context.t, context.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
+               context.insideAfter, hit);
     return true;
   }
+  hit.t = rh.ray.tfar;
+  hit.material = rec.material;
   // Triangle: position from barycentrics with pbrt-v4's bound (Pharr et al., 6.8.5).
   const TriangleMesh& m = *rec.mesh;
   const unsigned prim = rh.hit.primID;
@@ -502,10 +567,13 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   return true;
 }
 
-bool World::occluded(const Ray& ray, TraversalStats& stats) const {
+bool World::occluded(const Ray& spawned, TraversalStats& stats) const {
+  const Ray ray = startInsideVolume(spawned);
+  if (crossesAtInactiveStart(ray, nullptr, stats)) return true;
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;
+  startFromSurface(ray, m_surfaces, context);
   RTCRay r = toEmbree(ray);
   rtcOccluded1(m_scene, &context.embree, &r);
   stats.cellsVisited += context.stats.cellsVisited;
@@ -578,23 +646,37 @@ Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
   return po;
 }
 
-Ray spawnRay(const Hit& hit, const Vec3f& dir) {
+namespace {
+
+Ray leaving(const Hit& hit, const Vec3f& w) {
   Ray r;
-  const Vec3d o = offsetRayOrigin(hit, dir);
+  const Vec3d o = offsetRayOrigin(hit, w);
   r.org = Vec3f(o);
-  if (hit.surface >= 0) r.org64 = o;
-  r.dir = dir;
   r.tnear = 0;
+  if (hit.surface >= 0) {
+    r.org64 = o;
+    r.fromSurface = hit.surface;
+    // Through the surface when w heads to the same side of the normal as the incoming ray
+    // (w = incoming, the watertight check's case, always does); one of them in the plane
+    // decides by w against the incoming direction.
+    const float a = dot(w, hit.normal), b = dot(hit.incoming, hit.normal);
+    const bool through = a != 0 && b != 0 ? (a > 0) == (b > 0) : dot(w, hit.incoming) > 0;
+    r.fromInside = through ? hit.insideAfter : !hit.insideAfter;
+  }
+  return r;
+}
+
+}  // namespace
+
+Ray spawnRay(const Hit& hit, const Vec3f& dir) {
+  Ray r = leaving(hit, dir);
+  r.dir = dir;
   return r;
 }
 
 Ray spawnRayTo(const Hit& hit, const Vec3f& target) {
-  Ray r;
-  const Vec3d o = offsetRayOrigin(hit, target - hit.position);
-  r.org = Vec3f(o);
-  if (hit.surface >= 0) r.org64 = o;
-  r.dir = Vec3f(Vec3d(target) - o);
-  r.tnear = 0;
+  Ray r = leaving(hit, target - hit.position);
+  r.dir = Vec3f(Vec3d(target) - (r.org64 ? *r.org64 : Vec3d(r.org)));
   r.tfar = 1 - 1e-4f;
   return r;
 }

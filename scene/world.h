@@ -35,6 +35,8 @@ struct Hit {
   int light = -1;     // area light index of an emissive triangle, or -1
   int triangle = -1;  // triangle index inside that area light
   float b1 = 0, b2 = 0;  // barycentrics of a triangle hit
+  Vec3f incoming;        // direction of the ray that made the hit
+  bool insideAfter = false;  // iso-surfaces: the ray is inside (value > iso) just past the hit
 };
 
 struct SurfaceInfo {
@@ -121,6 +123,10 @@ class World {
   unsigned attach(RTCScene scene, RTCGeometry geometry, std::vector<GeometryRecord>& table,
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
+  void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter,
+                  Hit& hit) const;
+  bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;
+  Ray startInsideVolume(const Ray& ray) const;
 
   RTCDevice m_device = nullptr;
   RTCScene m_scene = nullptr;
@@ -149,6 +155,11 @@ class World {
 // by the hit's position error bound projected on it, to the side the ray leaves to, and is
 // then rounded away from the surface. For iso-surfaces that bound comes from the
 // intersector's error bound on t; for triangles from the barycentric interpolation.
+// A ray leaving an iso-surface also carries the class it starts in (Ray::fromSurface): the
+// class the hit's crossing led to if it goes on through the surface (to the side of the
+// normal the incoming ray was heading to), else the class it came from. Next to a close pair
+// of crossings the offset can step over the second one, or the field at the origin is below
+// rounding; with the class given, the query reports such a crossing at the origin instead.
 Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w);
 Ray spawnRay(const Hit& hit, const Vec3f& dir);
 // A shadow ray to `target` that stops just short of it (1 - 1e-4 of the way, pbrt's

@@ -77,9 +77,10 @@ double fieldAt(const Grid& grid, const Vec3d& world) {
   return trilinear(g, local);
 }
 
-// Counting crossings along a ray by restarting just past each hit (by its own error bound)
-// must give the parity that the classes at the two ends imply. A crack between cells or
-// bricks shows as a missing crossing, a re-hit as an extra one.
+// Counting crossings along a ray by restarting just past each hit (by its own error bound, in
+// the class the hit led to, as spawned rays do) must give the parity that the classes at the
+// two ends imply. A crack between cells or bricks shows as a missing crossing, a re-hit as an
+// extra one.
 void expectParity(const Grid& grid, double isoValue, int n, uint64_t seed) {
   const BrickGrid bricks(grid);
   const IsoSurface surface(grid, bricks, isoValue, {IntersectorKind::Isolation, 8});
@@ -106,10 +107,12 @@ void expectParity(const Grid& grid, double isoValue, int n, uint64_t seed) {
     ++checked;
     int count = 0;
     double tnear = 0;
+    StartClass start = StartClass::Unknown;
     SurfaceHit hit;
-    while (count < 1000 && surface.intersect(org, dir, tnear, 1e30, hit, stats)) {
+    while (count < 1000 && surface.intersect(org, dir, tnear, 1e30, hit, stats, start)) {
       ++count;
       tnear = hit.t + hit.tError;
+      start = hit.insideAfter ? StartClass::Inside : StartClass::Outside;
     }
     crossings += count;
     if ((count % 2 != 0) != ((f0 > 0) != (f1 > 0))) ++errors;
@@ -159,6 +162,112 @@ TEST(Traversal, InvalidRaysHitNothing) {
   EXPECT_NEAR(hit.t, 4.5, 0.01);
   EXPECT_TRUE(surface.occluded({0, 0, -5}, {0, 0, 1}, 0, 1e30, stats));
   EXPECT_FALSE(surface.occluded({0, 0, -5}, {0, 0, 1}, 0, 4.4, stats));
+}
+
+// A grid whose values vary along x only: `values[i]` at x = i, for every y and z in [0, 2].
+Grid alongX(const std::vector<float>& values) {
+  const Vec3i dims{int(values.size()), 3, 3};
+  std::vector<float> v;
+  for (int z = 0; z < dims.z; ++z)
+    for (int y = 0; y < dims.y; ++y) v.insert(v.end(), values.begin(), values.end());
+  return Grid(dims, std::move(v));
+}
+
+// A close pair of crossings at x = 0.999 and 1.001, then outside to the end. A restart past
+// both (as a spawn offset can land) finds nothing when the field decides its class, and the
+// second crossing at its start when it starts in the class the first hit led to.
+TEST(StartClass, ACrossingSteppedOverIsReportedAtTheStart) {
+  const Grid grid = alongX({-1, 0.001f, -1, -1, -1});
+  const BrickGrid bricks(grid);
+  for (const char* name : {"isolation", "reference", "linear"}) {
+    SCOPED_TRACE(name);
+    IntersectorSpec spec;
+    std::string error;
+    ASSERT_TRUE(parseIntersector(name, spec, error));
+    const IsoSurface surface(grid, bricks, 0, spec);
+    TraversalStats stats;
+    const Vec3d org{-1, 1.25, 0.75}, dir{1, 0, 0};
+    SurfaceHit first;
+    ASSERT_TRUE(surface.intersect(org, dir, 0, 1e30, first, stats));
+    EXPECT_NEAR(first.t, 1.999, 1e-3);
+    EXPECT_TRUE(first.insideAfter);
+    const StartClass after = StartClass::Inside;
+
+    SurfaceHit next;
+    const double past = 2.0015;  // beyond the second crossing, in a solved cell
+    EXPECT_FALSE(surface.intersect(org, dir, past, 1e30, next, stats));
+    ASSERT_TRUE(surface.intersect(org, dir, past, 1e30, next, stats, after));
+    EXPECT_NEAR(next.t, past, 1e-6);
+    EXPECT_FALSE(next.insideAfter);
+    EXPECT_TRUE(surface.occluded(org, dir, past, 1e30, stats, after));
+    EXPECT_FALSE(surface.occluded(org, dir, past, 1e30, stats, StartClass::Outside));
+
+    const double far = 3.5;  // in a cell that is outside at every corner
+    ASSERT_TRUE(surface.intersect(org, dir, far, 1e30, next, stats, after));
+    EXPECT_EQ(next.t, far);
+    EXPECT_FALSE(next.insideAfter);
+    EXPECT_FALSE(surface.intersect(org, dir, far, 1e30, next, stats, StartClass::Outside));
+
+    // Starting in the class the field has there changes nothing: the restart just past
+    // the first crossing finds the second (linear's bound on the first is its whole cell).
+    if (spec.kind == IntersectorKind::Linear) continue;
+    ASSERT_TRUE(surface.intersect(org, dir, first.t + first.tError, 1e30, next, stats, after));
+    EXPECT_NEAR(next.t, 2.001, 1e-3);
+  }
+}
+
+// Inactive bricks are no Embree primitives, so a ray starting in one is seen by no brick
+// query; crossesAtInactiveStart stands in for its first cell.
+TEST(StartClass, AStartInAnInactiveBrickOfTheOtherClass) {
+  std::vector<float> values(20, -1.f);  // x = 8..19 (the second brick) outside everywhere
+  for (int x = 0; x < 8; ++x) values[x] = x % 2 ? 1.f : -1.f;
+  const Grid grid = alongX(values);
+  const BrickGrid bricks(grid);
+  const IsoSurface surface(grid, bricks, 0, {});
+  ASSERT_EQ(surface.activeBricks().size(), 1u);
+  TraversalStats stats;
+  SurfaceHit hit;
+  const Vec3d inSecond{12.5, 1, 1}, inFirst{4.5, 1, 1}, dir{1, 0, 0};
+  ASSERT_TRUE(surface.crossesAtInactiveStart(inSecond, dir, 0, 1e30, StartClass::Inside, &hit, stats));
+  EXPECT_EQ(hit.t, 0);
+  EXPECT_FALSE(hit.insideAfter);
+  EXPECT_TRUE(surface.crossesAtInactiveStart(inSecond, dir, 0, 1e30, StartClass::Inside, nullptr, stats));
+  EXPECT_FALSE(surface.crossesAtInactiveStart(inSecond, dir, 0, 1e30, StartClass::Outside, &hit, stats));
+  EXPECT_FALSE(surface.crossesAtInactiveStart(inSecond, dir, 0, 1e30, StartClass::Unknown, &hit, stats));
+  EXPECT_FALSE(surface.crossesAtInactiveStart(inFirst, dir, 0, 1e30, StartClass::Inside, &hit, stats));
+}
+
+// The renderer's spawned rays carry the class: on through the surface, the class the hit led
+// to; back to the side the ray came from (a reflection, a shadow ray towards the light), the
+// class before it.
+TEST(StartClass, SpawnedRaysCarryTheClass) {
+  const SceneDesc scene = parseSceneText(
+      R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "isosurfaces": [{"value": 0.6}]}]})",
+      "sphere.json");
+  const World world(scene, IntersectorSpec{});
+  const Grid& grid = *world.volumes()[0].grid;
+  auto insideAt = [&](const Vec3f& p) {
+    return grid.interpolate((Vec3d(p) - grid.origin()) / grid.spacing()) > 0.6;
+  };
+  TraversalStats stats;
+  Ray ray;
+  ray.org = {0.1f, -0.2f, -5};
+  ray.dir = normalize(Vec3f{0.02f, 0.05f, 1});
+  Hit hit;
+  ASSERT_TRUE(world.intersect(ray, hit, stats));
+  EXPECT_EQ(hit.insideAfter, insideAt(hit.position + ray.dir * 0.05f));
+  EXPECT_NE(hit.insideAfter, insideAt(ray.org + ray.dir * (hit.t - 0.05f)));
+
+  const Ray on = spawnRay(hit, ray.dir);
+  EXPECT_EQ(on.fromSurface, hit.surface);
+  EXPECT_EQ(on.fromInside, hit.insideAfter);
+  const Vec3f n = hit.normal;
+  EXPECT_EQ(spawnRay(hit, ray.dir - n * (2 * dot(ray.dir, n))).fromInside, !hit.insideAfter);
+  EXPECT_EQ(spawnRayTo(hit, ray.org).fromInside, !hit.insideAfter);
+  Hit next;
+  ASSERT_TRUE(world.intersect(on, next, stats));
+  EXPECT_GT(next.t, 0.1f);  // through the sphere to its far side
+  EXPECT_EQ(next.insideAfter, !hit.insideAfter);
 }
 
 }  // namespace

@@ -20,6 +20,10 @@ class BrickGrid {
   // The cell range [begin, end) of brick b.
   Vec3i cellBegin(uint32_t b) const;
   Vec3i cellEnd(uint32_t b) const;
+  // The brick holding cell c.
+  uint32_t brickOf(const Vec3i& c) const {
+    return uint32_t((size_t(c.z / kCells) * m_count.y + c.y / kCells) * m_count.x + c.x / kCells);
+  }
   // Bricks that can hold a crossing of `iso`: min <= iso <= max, not all equal to iso (inside
   // means > iso; a brick whose max is iso holds a crossing on its boundary).
   std::vector<uint32_t> activeBricks(float iso) const;

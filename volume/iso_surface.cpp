@@ -4,22 +4,45 @@
 #include <cmath>
 
 namespace iso {
+namespace {
+
+// The ray of a query in grid coordinates. A ray with a given start class continues from a hit
+// inside the grid's box; where the spawn offset (or rounding) put its start just outside the
+// box, it is moved back onto the box (by at most that offset), so that the class applies
+// where the ray meets the field. Left outside, the ray would enter through a face whose class
+// is evaluated, and a chain of rays could change class there without a hit.
+template <typename Real>
+GridRay<Real> queryRay(const Grid& grid, const Vec3d& org, const Vec3d& dir, double tnear, StartClass start) {
+  if (start == StartClass::Unknown || !std::isfinite(tnear)) return toGridRay<Real>(grid, org, dir);
+  Vec3d o = (org - grid.origin()) / grid.spacing();
+  const Vec3d d = dir / grid.spacing();
+  const Vec3i dims = grid.dims();
+  for (int a = 0; a < 3; ++a) {
+    const double p = o[a] + tnear * d[a];
+    o[a] += std::clamp(p, 0.0, double(dims[a] - 1)) - p;
+  }
+  return GridRay<Real>(Vec3<Real>(o), Vec3<Real>(d));
+}
+
+}  // namespace
 
 IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec)
     : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec),
-      m_active(bricks.activeBricks(float(iso))) {}
+      m_active(bricks.activeBricks(float(iso))), m_isActive(bricks.size(), false) {
+  for (uint32_t b : m_active) m_isActive[b] = true;
+}
 
 template <bool AnyHit>
 bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear,
-                       double tfar, SurfaceHit* hit, TraversalStats& stats) const {
+                       double tfar, SurfaceHit* hit, TraversalStats& stats, StartClass start) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
-    const GridRay<Real> ray = toGridRay<Real>(m_grid, org, dir);
+    const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
     CellHit<Real> cellHit;
     if (!traverseCells<AnyHit>(m_grid, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
-                               cellHit, stats))
+                               cellHit, stats, start))
       return false;
     if constexpr (!AnyHit) {
       Real g[8];
@@ -33,6 +56,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, d
       hit->t = double(cellHit.t);
       hit->tError = double(cellHit.tError);
       hit->tangent = cellHit.tangent;
+      hit->insideAfter = cellHit.insideAfter;
     }
     return true;
   };
@@ -47,29 +71,55 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, d
 }
 
 bool IsoSurface::intersectBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
-                                double tfar, SurfaceHit& hit, TraversalStats& stats) const {
+                                double tfar, SurfaceHit& hit, TraversalStats& stats,
+                                StartClass start) const {
   return query<false>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, &hit,
-                      stats);
+                      stats, start);
 }
 
 bool IsoSurface::occludedBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
-                               double tfar, TraversalStats& stats) const {
+                               double tfar, TraversalStats& stats, StartClass start) const {
   return query<true>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, nullptr,
-                     stats);
+                     stats, start);
 }
 
 // Without Embree: one DDA over the whole grid. Cells are skipped by their corners alone, so
 // this gives the same answers as the brick path (a test checks it bit for bit).
 bool IsoSurface::intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-                           SurfaceHit& hit, TraversalStats& stats) const {
+                           SurfaceHit& hit, TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, &hit, stats);
+  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, &hit, stats, start);
 }
 
 bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-                          TraversalStats& stats) const {
+                          TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, nullptr, stats);
+  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, nullptr, stats, start);
+}
+
+bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, double tnear,
+                                        double tfar, StartClass start, SurfaceHit* hit,
+                                        TraversalStats& stats) const {
+  if (start == StartClass::Unknown || !(tnear <= tfar)) return false;
+  // The start cell as the traversal finds it: in the precision of the intersector.
+  auto startCell = [&](auto real, Vec3i& cell) {
+    using Real = decltype(real);
+    const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
+    if (!ray.valid()) return false;
+    const Vec3i d = m_grid.dims();
+    for (int a = 0; a < 3; ++a) {
+      const Real p = ray.org[a] + Real(tnear) * ray.dir[a];
+      if (!(p >= Real(0) && p <= Real(d[a] - 1))) return false;
+      cell[a] = std::min(int(std::floor(p)), d[a] - 2);
+    }
+    return true;
+  };
+  Vec3i cell;
+  const bool inGrid = m_spec.kind == IntersectorKind::Reference ? startCell(0.0, cell) : startCell(0.f, cell);
+  if (!inGrid || m_isActive[m_bricks.brickOf(cell)]) return false;
+  const Vec3i next{cell.x + 1, cell.y + 1, cell.z + 1};
+  return hit ? query<false>(cell, next, org, dir, tnear, tfar, hit, stats, start)
+             : query<true>(cell, next, org, dir, tnear, tfar, nullptr, stats, start);
 }
 
 void IsoSurface::setWorldToObject(const Transform& t) {
@@ -127,8 +177,9 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   SurfaceHit hit;
   const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray.org_x, ray.org_y, ray.org_z};
   const Vec3d dir{ray.dir_x, ray.dir_y, ray.dir_z};
+  const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
   if (!surface->intersectBrick(surface->activeBricks()[args->primID], org, dir, ray.tnear,
-                               ray.tfar, hit, context->stats))
+                               ray.tfar, hit, context->stats, start))
     return;
   const float t = float(hit.t);
   if (!(t >= ray.tnear && t <= ray.tfar)) return;
@@ -142,6 +193,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
   context->tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
   context->t = hit.t;
+  context->insideAfter = hit.insideAfter;
 }
 
 void occludedCallback(const RTCOccludedFunctionNArguments* args) {
@@ -151,8 +203,9 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   RTCRay* ray = reinterpret_cast<RTCRay*>(args->ray);
   const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray->org_x, ray->org_y, ray->org_z};
   const Vec3d dir{ray->dir_x, ray->dir_y, ray->dir_z};
+  const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
   if (surface->occludedBrick(surface->activeBricks()[args->primID], org, dir, ray->tnear,
-                             ray->tfar, context->stats))
+                             ray->tfar, context->stats, start))
     ray->tfar = -INFINITY;
 }
 

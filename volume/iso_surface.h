@@ -17,6 +17,7 @@ struct SurfaceHit {
   double tError = 0;   // |t - true t| <= tError (see Root::sError)
   Vec3f normal;        // world space, unit, pointing to lower values (out of "inside")
   bool tangent = false;
+  bool insideAfter = false;  // the class (value > iso) just past the hit, along the ray
 };
 
 // Embree carries no per-hit error bound, so rays are traced with this extended context
@@ -25,11 +26,17 @@ struct SurfaceHit {
 // iso-surface hit far from the world origin keep the precision a float origin would lose
 // (at 1e5 a float is exact to 1/128 only), and the iso-surface queries start from it, mapped
 // to object space in double (Embree's float instance transform would round it again).
+// `startSurface` and `start`: a ray spawned from a hit on that surface starts in the class
+// `start` there (see StartClass in volume/traversal.h).
+class IsoSurface;
 struct IsoRayContext {
   RTCIntersectContext embree;
   const Vec3d* origin = nullptr;
+  const IsoSurface* startSurface = nullptr;
+  StartClass start = StartClass::Unknown;
   double t = 0;       // the accepted iso-surface hit, in double
   float tError = 0;
+  bool insideAfter = false;
   TraversalStats stats;
   IsoRayContext() { rtcInitIntersectContext(&embree); }
 };
@@ -45,16 +52,24 @@ class IsoSurface {
   size_t totalBricks() const { return m_bricks.size(); }
 
   // Queries on a world-space ray over the whole grid, without Embree (tests, benchmarks,
-  // the reference path).
+  // the reference path). `start`: the class at tnear when the ray continues from a hit of
+  // this surface (a restart past the hit: StartClass of hit.insideAfter).
   bool intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit& hit,
-                 TraversalStats& stats) const;
+                 TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   bool occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-                TraversalStats& stats) const;
+                TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   // The same on one brick, as Embree calls it.
   bool intersectBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
-                      double tfar, SurfaceHit& hit, TraversalStats& stats) const;
+                      double tfar, SurfaceHit& hit, TraversalStats& stats,
+                      StartClass start = StartClass::Unknown) const;
   bool occludedBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
-                     double tfar, TraversalStats& stats) const;
+                     double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown) const;
+  // With bricks, a ray that starts in an inactive brick has its first cell seen by no brick
+  // query (inactive bricks are no Embree primitives). When its start class is given and that
+  // brick lies strictly on the other side, the crossing is at the start: true, and `hit` (if
+  // not null) is that crossing at tnear.
+  bool crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+                              StartClass start, SurfaceHit* hit, TraversalStats& stats) const;
 
   // Where the surface is placed when its geometry is instanced: world -> object space, for
   // the double-precision origin of IsoRayContext. Identity by default.
@@ -63,6 +78,7 @@ class IsoSurface {
   // into bricks whose own coordinates are small.
   void setWorldToObject(const Transform& t);
   Vec3d objectOrigin(const Vec3d& world) const { return m_instanced ? m_worldToObject.point(world) : world; }
+  Vec3d objectDirection(const Vec3d& world) const { return m_instanced ? m_worldToObject.vector(world) : world; }
 
   // A user geometry (one primitive per active brick) attached to nothing; the caller owns it.
   RTCGeometry createGeometry(RTCDevice device) const;
@@ -72,13 +88,14 @@ class IsoSurface {
  private:
   template <bool AnyHit>
   bool query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-             SurfaceHit* hit, TraversalStats& stats) const;
+             SurfaceHit* hit, TraversalStats& stats, StartClass start) const;
 
   const Grid& m_grid;
   const BrickGrid& m_bricks;
   double m_iso;
   IntersectorSpec m_spec;
   std::vector<uint32_t> m_active;
+  std::vector<bool> m_isActive;  // per brick
   Transform m_worldToObject;
   bool m_instanced = false;
   double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances

@@ -50,7 +50,18 @@ struct CellHit {
   Vec3i cell;
   Vec3<Real> local;   // cell-local hit coordinates
   bool tangent = false;
+  bool insideAfter = false;  // the class (value > iso) the ray is in just past the hit
 };
+
+// The class a query starts in when the caller knows it. A ray that continues from a hit on
+// this surface (a spawned ray, or a restart past the hit) is in the class the hit's crossing
+// led to, or back in the one it came from (a reflection). Evaluating the field at the new
+// origin instead is unreliable exactly where it matters: next to a close pair of crossings the
+// values there are below rounding, and a spawn offset can step over the second crossing. With
+// the class given, a query that finds the field on the other side right at its start reports
+// a crossing there (t ~ tnear), so the classes along a chain of rays telescope like those
+// along one ray: the number of hits has the parity of the classes at the chain's two ends.
+enum class StartClass : signed char { Unknown = 0, Outside = -1, Inside = 1 };
 
 template <typename Real>
 inline void loadCell(const Grid& grid, const Vec3i& c, Real iso, Real g[8]) {
@@ -70,10 +81,11 @@ inline Real approachSide(const Cubic<Real>& c, Real flat) {
 
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
+// `start` applies where the query starts at tnear inside the box (not at a face of it).
 template <bool AnyHit, typename Real, typename Intersector>
 bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
-                   TraversalStats& stats) {
+                   TraversalStats& stats, StartClass start = StartClass::Unknown) {
   if (!ray.valid() || !(tnear <= tfar)) return false;
   Real t0 = tnear, t1 = tfar;
   int entryAxis = -1;
@@ -118,6 +130,14 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
     return Real(pos == entering ? 0 : 1);
   };
 
+  // Rounding in a hit's t: of the ray's origin in grid coordinates (it moves the ray by
+  // eps |org|, i.e. t by that over the speed), and of t and the segment length themselves.
+  auto roundingOfT = [&](Real t, Real len) {
+    const Real originScale =
+        std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) / length(ray.dir);
+    return Real(2) * std::numeric_limits<Real>::epsilon() * (originScale + std::fabs(t) + len);
+  };
+
   Real ta = t0;
   int enterAxis = entryAxis;
   // Exact zeros (a face or edge whose value is exactly the iso value, common with integer
@@ -135,6 +155,9 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
   // was seen by neither brick. Only the first cell needs it, and only if it is not of one
   // strict sign, so it is worked out there, from that cell's values.
   bool entryPending = entryAxis >= 0;
+  // A given start class stands for the first segment's f0, whatever the field says there.
+  bool startGiven = entryAxis < 0 && start != StartClass::Unknown;
+  if (startGiven) carried = start == StartClass::Inside ? tiny : -tiny;
   auto classBehindEntry = [&](const Real g[8]) {
     Vec3i prev = cell;
     prev[entryAxis] -= step[entryAxis];
@@ -172,6 +195,23 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
       if (positive != 8 && negative != 8) carried = classBehindEntry(seg.g);
     }
     const bool carriedIn = carried > Real(0);
+    if (startGiven && ((positive == 8 && !carriedIn) || (negative == 8 && carriedIn))) {
+      // The field is strictly on the other side all over the first cell: the crossing lies
+      // between the hit the ray continues from and its origin (the spawn offset stepped
+      // over it). It is reported at the start, where its bound is the rounding of t alone.
+      if constexpr (AnyHit) {
+        return true;
+      } else {
+        ++stats.rootsRefined;
+        hit.t = ta;
+        hit.tError = roundingOfT(ta, Real(0));
+        hit.cell = cell;
+        hit.local = localAt(ta, -1, Real(0));
+        hit.tangent = false;
+        hit.insideAfter = !carriedIn;
+        return true;
+      }
+    }
     if (positive == 8) {
       carried = tiny;
     } else if (negative == 8) {
@@ -184,7 +224,7 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
       seg.b = localAt(tb, leaveAxis, leaveAxis >= 0 ? faceValue(leaveAxis, false) : Real(0));
       seg.f0 = trilinear(seg.g, seg.a);
       seg.f1 = trilinear(seg.g, seg.b);
-      if (seg.f0 == Real(0)) seg.f0 = carried;
+      if (seg.f0 == Real(0) || startGiven) seg.f0 = carried;
       if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.f0) > Real(0) ? tiny : -tiny;
       carried = seg.f1 > Real(0) ? tiny : -tiny;
       if constexpr (AnyHit) {
@@ -195,20 +235,18 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
           ++stats.rootsRefined;
           const Real len = tb - ta;
           hit.t = ta + root.s * len;
-          // The bracket in s, plus rounding: of the ray's origin in grid coordinates (it
-          // moves the ray by eps |org|, i.e. t by that over the speed), and of t itself.
-          const Real originScale =
-              std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) /
-              length(ray.dir);
-          hit.tError = root.sError * len + Real(2) * std::numeric_limits<Real>::epsilon() *
-                                               (originScale + std::fabs(hit.t) + len);
+          hit.tError = root.sError * len + roundingOfT(hit.t, len);
           hit.cell = cell;
           hit.local = seg.a + (seg.b - seg.a) * root.s;
           hit.tangent = root.tangent;
+          // The first change of class on the segment leaves the class of f0 (a tangent
+          // root changes nothing).
+          hit.insideAfter = root.tangent ? isInside(seg.f0) : !isInside(seg.f0);
           return true;
         }
       }
     }
+    startGiven = false;
     if (!throughFace) return false;
     cell[m] += step[m];
     if (cell[m] < lo[m] || cell[m] >= hi[m]) return false;
