@@ -15,6 +15,7 @@ namespace iso {
 void WatertightCounts::add(const WatertightCounts& o) {
   rays += o.rays;
   crossings += o.crossings;
+  referenceCrossings += o.referenceCrossings;
   parityErrors += o.parityErrors;
   selfHits += o.selfHits;
   insideEscapes += o.insideEscapes;
@@ -132,6 +133,8 @@ class SurfaceChecker {
             Ray last;
             const int hits = trace(ray, nullptr, stats, &last);
             c.crossings += hits;
+            const int expected = referenceCrossings(o, d, 0, t1 + margin, stats);
+            c.referenceCrossings += expected;
             Vec3d exit;
             const bool leaves = exitPoint(last, hits > 0, exit);
             const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
@@ -142,7 +145,7 @@ class SurfaceChecker {
             if (defined && (hits % 2 == 1) != (in0 != in1)) {
               ++c.parityErrors;
               // Which way it went wrong: a root counted twice, or one missed (a hole).
-              if (hits > referenceCrossings(o, d, 0, t1 + margin, stats)) ++c.selfHits;
+              if (hits > expected) ++c.selfHits;
             }
           }
         }

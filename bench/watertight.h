@@ -12,6 +12,9 @@
 //   the line.
 // - inside escape: a ray from a random point whose class differs from the class where the ray
 //   leaves the box must hit; one that reports nothing escaped through a hole.
+// - reference crossings: what the double-precision reference counts on the parity lines.
+//   Fewer crossings than that with no parity error means pairs of crossings lost whole (a
+//   thin wall that disappears: linear interpolation inside one cell), which parity cannot see.
 // - shadow mismatch: the occlusion query between two random points disagrees with the
 //   crossings traced between them (any crossing, or different classes, means occluded).
 #include <cstdint>
@@ -25,6 +28,7 @@ namespace iso {
 struct WatertightCounts {
   uint64_t rays = 0;  // per test: parity, inside and shadow each use this many
   uint64_t crossings = 0;
+  uint64_t referenceCrossings = 0;  // on the parity rays' lines, by the double reference
   uint64_t parityErrors = 0;
   uint64_t selfHits = 0;
   uint64_t insideEscapes = 0;

@@ -366,20 +366,22 @@ int watertight(const CheckFlags& flags) {
   std::printf("watertight %s: intersector %s, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)\n",
               flags.scene.c_str(), intersectorName(spec).c_str(), flags.rays, flags.seed, options.offset.x,
               options.offset.y, options.offset.z);
-  std::printf("%-7s %-10s %9s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "parity_errors",
-              "self_hits", "inside_escapes", "shadow_mismatches");
+  std::printf("%-7s %-10s %9s %10s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "reference",
+              "parity_errors", "self_hits", "inside_escapes", "shadow_mismatches");
   WatertightCounts total;
   auto row = [](const char* v, const std::string& iso, const WatertightCounts& c) {
-    std::printf("%-7s %-10s %9llu %10llu %14llu %10llu %15llu %18llu\n", v, iso.c_str(), (unsigned long long)c.rays,
-                (unsigned long long)c.crossings, (unsigned long long)c.parityErrors, (unsigned long long)c.selfHits,
+    std::printf("%-7s %-10s %9llu %10llu %10llu %14llu %10llu %15llu %18llu\n", v, iso.c_str(), (unsigned long long)c.rays,
+                (unsigned long long)c.crossings, (unsigned long long)c.referenceCrossings,
+                (unsigned long long)c.parityErrors, (unsigned long long)c.selfHits,
                 (unsigned long long)c.insideEscapes, (unsigned long long)c.shadowMismatches);
   };
   auto counts = [](const WatertightCounts& c) {
     char buf[400];
     std::snprintf(buf, sizeof buf,
-                  "\"rays\": %llu, \"crossings\": %llu, \"parity_errors\": %llu, \"self_hits\": %llu, "
-                  "\"inside_escapes\": %llu, \"shadow_mismatches\": %llu",
-                  (unsigned long long)c.rays, (unsigned long long)c.crossings, (unsigned long long)c.parityErrors,
+                  "\"rays\": %llu, \"crossings\": %llu, \"reference_crossings\": %llu, \"parity_errors\": %llu, "
+                  "\"self_hits\": %llu, \"inside_escapes\": %llu, \"shadow_mismatches\": %llu",
+                  (unsigned long long)c.rays, (unsigned long long)c.crossings,
+                  (unsigned long long)c.referenceCrossings, (unsigned long long)c.parityErrors,
                   (unsigned long long)c.selfHits, (unsigned long long)c.insideEscapes,
                   (unsigned long long)c.shadowMismatches);
     return std::string(buf);

@@ -90,6 +90,48 @@ TEST(Cli, BadFlagsExitWithStatus2) {
   EXPECT_NE(r.err.find("out.tiff: output must end in .exr or .png"), std::string::npos) << r.err;
 }
 
+// `watertight` and `bench` write the JSON the docs describe; the totals are the sums of the
+// surfaces; bad flags are bad input.
+TEST(Cli, WatertightAndBenchJson) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/w.json";
+  test::writeText(path, scene(R"({"procedural": {"field": "torus", "resolution": [24, 24, 24]}, "isosurfaces": [{"value": 0.2}, {"value": 0.3}]})"));
+  auto r = runIsotrace("watertight " + path + " --rays 2000 --intersector linear --json " + dir + "/w_out.json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::ifstream in(dir + "/w_out.json");
+  const nlohmann::json w = nlohmann::json::parse(in);
+  ASSERT_EQ(w.at("surfaces").size(), 2u);
+  const char* keys[] = {"rays", "crossings", "reference_crossings", "parity_errors", "self_hits", "inside_escapes",
+                        "shadow_mismatches"};
+  for (const char* key : keys) {
+    uint64_t sum = 0;
+    for (const auto& surface : w.at("surfaces")) sum += surface.at(key).get<uint64_t>();
+    EXPECT_EQ(w.at("total").at(key).get<uint64_t>(), sum) << key;
+  }
+  EXPECT_EQ(w.at("surfaces")[0].at("intersector"), "linear");
+  EXPECT_EQ(w.at("surfaces")[1].at("iso").get<double>(), 0.3);
+  EXPECT_EQ(w.at("total").at("rays"), 4000);
+  EXPECT_GT(w.at("total").at("crossings").get<uint64_t>(), 1000u);
+
+  r = runIsotrace("bench " + path + " --rays 500 --intersector isolation:2,reference --json " + dir + "/b_out.json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::ifstream bin(dir + "/b_out.json");
+  const nlohmann::json b = nlohmann::json::parse(bin);
+  ASSERT_EQ(b.at("results").size(), 8u);  // 2 surfaces x 2 ray kinds x 2 intersectors
+  for (const auto& row : b.at("results")) {
+    EXPECT_EQ(row.at("count"), 500);
+    EXPECT_GT(row.at("ns_per_ray").get<double>(), 0);
+    if (row.at("intersector") == "reference") EXPECT_EQ(row.at("max_dt").get<double>(), 0);
+  }
+
+  for (const std::string& bad : {"watertight " + path + " --rays 0", "watertight " + path + " --intersector cubic",
+                                 "bench " + path + " --intersector isolation,nope", "watertight " + dir + "/none.json"}) {
+    r = runIsotrace(bad);
+    EXPECT_EQ(r.status, 2) << bad;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << bad << ": " << r.err;
+  }
+}
+
 TEST(Cli, RendersAnExrWithNormalsAndPrintsItsPath) {
   const std::string dir = test::scratchDir();
   const std::string path = dir + "/s.json";
