@@ -270,5 +270,39 @@ TEST(StartClass, SpawnedRaysCarryTheClass) {
   EXPECT_EQ(next.insideAfter, !hit.insideAfter);
 }
 
+// A spawn offset can push a ray's origin outside its volume's box (by up to a cell for the
+// loose bounds of linear or isolation:1); its class then applies where it meets the box, not
+// after a fresh evaluation at the face. Here the ray runs nearly parallel to the face, so
+// without moving the origin onto the box, Embree would not even visit the first brick.
+TEST(StartClass, AnOriginJustOutsideTheBoxStartsOnIt) {
+  const SceneDesc scene = parseSceneText(
+      R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "isosurfaces": [{"value": 0.6}]}]})",
+      "sphere.json");
+  const World world(scene, IntersectorSpec{});
+  const Grid& grid = *world.volumes()[0].grid;
+  const double face = grid.origin().x;
+  const Vec3d onFace{face, grid.origin().y + 0.45 * 23 * grid.spacing().y, grid.origin().z + 0.55 * 23 * grid.spacing().z};
+  const bool faceInside = grid.interpolate((onFace - grid.origin()) / grid.spacing()) > 0.6;
+  TraversalStats stats;
+  for (bool fromInside : {faceInside, !faceInside}) {
+    Ray ray;
+    ray.org64 = onFace - Vec3d{0.3 * grid.spacing().x, 0, 0};
+    ray.org = Vec3f(*ray.org64);
+    ray.dir = normalize(Vec3f{0.03f, 1, -0.05f});
+    ray.fromSurface = 0;
+    ray.fromInside = fromInside;
+    Hit hit;
+    const bool got = world.intersect(ray, hit, stats);
+    if (fromInside == faceInside) {
+      EXPECT_TRUE(!got || hit.t > 0.1f * grid.spacing().x);  // the field's own class: nothing at the face
+    } else {
+      ASSERT_TRUE(got);
+      EXPECT_LT(hit.t, 1e-3f * grid.spacing().x);
+      EXPECT_EQ(hit.insideAfter, faceInside);
+      EXPECT_TRUE(world.occluded(ray, stats));
+    }
+  }
+}
+
 }  // namespace
 }  // namespace iso
