@@ -91,15 +91,22 @@ class SurfaceChecker {
     return hits;
   }
 
-  // Where a ray leaves the box, in grid coordinates; false if it does not, or starts outside it
-  // after a hit (spawned past the boundary).
+  // Where a ray leaves the box, in grid coordinates; false if it misses the box. The origin of
+  // a spawned ray that lies outside the box is first moved onto it, as World does
+  // (World::startInsideVolume): a chain of rays that left the box in a spawn offset ends there.
   bool exitPoint(const Ray& ray, bool spawned, Vec3d& exit) const {
-    const Vec3d o = toGrid(ray.org64 ? *ray.org64 : Vec3d(ray.org));
-    const Vec3d d = toGrid((ray.org64 ? *ray.org64 : Vec3d(ray.org)) + Vec3d(ray.dir)) - o;
+    const Vec3d world = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+    Vec3d o = toGrid(world);
+    const Vec3d d = toGrid(world + Vec3d(ray.dir)) - o;
+    if (spawned)
+      for (int a = 0; a < 3; ++a) o[a] = std::clamp(o[a], 0.0, m_hi[a]);
     double t0, t1;
-    if (!clipToBox(o, d, m_hi, t0, t1) || t1 < 0 || (spawned && t0 > 0)) return false;
-    exit = o + d * t1;
-    return true;
+    if (clipToBox(o, d, m_hi, t0, t1) && t1 >= 0) {
+      exit = o + d * t1;
+      return true;
+    }
+    exit = o;
+    return spawned;
   }
 
   void one(std::mt19937_64& rng, WatertightCounts& c, TraversalStats& stats) const {

@@ -7,19 +7,30 @@ namespace iso {
 namespace {
 
 // The ray of a query in grid coordinates. A ray with a given start class continues from a hit
-// inside the grid's box; where the spawn offset (or rounding) put its start just outside the
-// box, it is moved back onto the box (by at most that offset), so that the class applies
-// where the ray meets the field. Left outside, the ray would enter through a face whose class
-// is evaluated, and a chain of rays could change class there without a hit.
+// inside the grid's box, so its start belongs on the box. Where a restart by the hit's error
+// bound went past the box's exit along the ray, the start moves back to that exit; where a
+// spawn offset (or rounding) put it just beside the box, it moves onto the box (World moves
+// spawned origins there already; this takes the rounding). Either way the class applies where
+// the ray meets the field: left outside, the ray would enter through a face whose class is
+// evaluated, or end without comparing its class with the field, and a chain of rays could
+// change class without a hit.
 template <typename Real>
 GridRay<Real> queryRay(const Grid& grid, const Vec3d& org, const Vec3d& dir, double tnear, StartClass start) {
   if (start == StartClass::Unknown || !std::isfinite(tnear)) return toGridRay<Real>(grid, org, dir);
   Vec3d o = (org - grid.origin()) / grid.spacing();
   const Vec3d d = dir / grid.spacing();
-  const Vec3i dims = grid.dims();
+  const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
+  double ta = -INFINITY, tb = INFINITY;
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0) continue;
+    const double t0 = -o[a] / d[a], t1 = (hi[a] - o[a]) / d[a];
+    ta = std::max(ta, std::min(t0, t1));
+    tb = std::min(tb, std::max(t0, t1));
+  }
+  if (ta <= tb && tnear > tb) o = o + d * (tb - tnear);
   for (int a = 0; a < 3; ++a) {
     const double p = o[a] + tnear * d[a];
-    o[a] += std::clamp(p, 0.0, double(dims[a] - 1)) - p;
+    o[a] += std::clamp(p, 0.0, hi[a]) - p;
   }
   return GridRay<Real>(Vec3<Real>(o), Vec3<Real>(d));
 }
