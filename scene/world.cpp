@@ -411,7 +411,7 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
 
 // The iso-surface hit at `t` on `ray`; `normal` in the surface's object space.
 void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal,
-                       bool insideAfter, Hit& hit) const {
+                       bool insideAfter, const Transform* toWorld, Hit& hit) const {
   const SurfaceInfo& info = m_surfaces[surface];
   hit.t = float(t);
   hit.material = info.material;
@@ -425,8 +425,7 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   const Vec3d a = absv(hit.position64);
   const double rounding = 4 * 0x1p-52 * (std::max({a.x, a.y, a.z}) + length(dir) * std::fabs(t));
   hit.pError = Vec3f(absv(dir) * double(tError) + Vec3d(rounding, rounding, rounding));
-  const Transform& toWorld = m_volumes[info.volume].transform;
-  if (!toWorld.isIdentity()) normal = toWorld.normal(normal);
+  if (toWorld) normal = toWorld->normal(normal);
   hit.normal = Vec3f(normalize(normal));
   if (!info.solidAbove) hit.normal = -hit.normal;
   hit.shading = hit.normal;
@@ -446,7 +445,9 @@ bool World::crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& sta
   if (hit) {
     *hit = Hit();
     hit->incoming = ray.dir;
-    fillIsoHit(ray, ray.fromSurface, sh.t, float(sh.tError), Vec3d(sh.normal), sh.insideAfter, *hit);
+    const Transform& toWorld = m_volumes[m_surfaces[ray.fromSurface].volume].transform;
+    fillIsoHit(ray, ray.fromSurface, sh.t, float(sh.tError), Vec3d(sh.normal), sh.insideAfter,
+               toWorld.isIdentity() ? nullptr : &toWorld, *hit);
   }
   return true;
 }
@@ -482,9 +483,13 @@ void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, 
 
 }  // namespace
 
-bool World::intersect(const Ray& spawned, Hit& hit, TraversalStats& stats) const {
-  const Ray ray = startInsideVolume(spawned);
-  if (crossesAtInactiveStart(ray, &hit, stats)) return true;
+bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
+  if (ray.fromSurface < 0) return trace(ray, hit, stats);
+  const Ray start = startInsideVolume(ray);
+  return crossesAtInactiveStart(start, &hit, stats) || trace(start, hit, stats);
+}
+
+bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;
@@ -504,7 +509,7 @@ bool World::intersect(const Ray& spawned, Hit& hit, TraversalStats& stats) const
   if (!rec.mesh) {
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
     fillIsoHit(ray, rec.surface, context.t, context.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
-               context.insideAfter, hit);
+               context.insideAfter, rec.identity ? nullptr : &rec.toWorld, hit);
     return true;
   }
   hit.t = rh.ray.tfar;
@@ -567,9 +572,13 @@ bool World::intersect(const Ray& spawned, Hit& hit, TraversalStats& stats) const
   return true;
 }
 
-bool World::occluded(const Ray& spawned, TraversalStats& stats) const {
-  const Ray ray = startInsideVolume(spawned);
-  if (crossesAtInactiveStart(ray, nullptr, stats)) return true;
+bool World::occluded(const Ray& ray, TraversalStats& stats) const {
+  if (ray.fromSurface < 0) return traceShadow(ray, stats);
+  const Ray start = startInsideVolume(ray);
+  return crossesAtInactiveStart(start, nullptr, stats) || traceShadow(start, stats);
+}
+
+bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   IsoRayContext context;
   const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
   context.origin = &origin;

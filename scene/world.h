@@ -124,9 +124,11 @@ class World {
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
   void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter,
-                  Hit& hit) const;
+                  const Transform* toWorld, Hit& hit) const;
   bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;
   Ray startInsideVolume(const Ray& ray) const;
+  bool trace(const Ray& ray, Hit& hit, TraversalStats& stats) const;  // intersect() through Embree
+  bool traceShadow(const Ray& ray, TraversalStats& stats) const;      // occluded() through Embree
 
   RTCDevice m_device = nullptr;
   RTCScene m_scene = nullptr;

@@ -20,6 +20,12 @@ GridRay<Real> queryRay(const Grid& grid, const Vec3d& org, const Vec3d& dir, dou
   Vec3d o = (org - grid.origin()) / grid.spacing();
   const Vec3d d = dir / grid.spacing();
   const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
+  bool inBox = true;
+  for (int a = 0; a < 3; ++a) {
+    const double p = o[a] + tnear * d[a];
+    inBox = inBox && p >= 0 && p <= hi[a];
+  }
+  if (inBox) return GridRay<Real>(Vec3<Real>(o), Vec3<Real>(d));
   double ta = -INFINITY, tb = INFINITY;
   for (int a = 0; a < 3; ++a) {
     if (d[a] == 0) continue;
