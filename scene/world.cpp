@@ -560,9 +560,9 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
     dpdv = Vec3f(t.vector(Vec3d(dpdv)));
   }
   const float ngLen = length(ng);
-  hit.normal = ngLen > 0 ? ng / ngLen : -ray.dir;
+  hit.normal = ngLen > 0 ? ng * (1 / ngLen) : -ray.dir;
   const float nsLen = length(ns);
-  hit.shading = nsLen > 0 && std::isfinite(nsLen) ? ns / nsLen : hit.normal;
+  hit.shading = nsLen > 0 && std::isfinite(nsLen) ? ns * (1 / nsLen) : hit.normal;
   // The geometric normal follows the shading normals' side (pbrt's convention): vertex
   // normals say which way is out even where the winding disagrees.
   if (dot(hit.normal, hit.shading) < 0) hit.normal = -hit.normal;
