@@ -82,7 +82,8 @@ class SurfaceChecker {
       ++hits;
       ray = spawnRay(hit, ray.dir);
       if (end) {
-        const float rest = float(dot(*end - (ray.org64 ? *ray.org64 : Vec3d(ray.org)), Vec3d(ray.dir)));
+        const Vec3d d(ray.dir);
+        const float rest = float(dot(*end - (ray.org64 ? *ray.org64 : Vec3d(ray.org)), d) / dot(d, d));
         if (!(rest > 0)) break;
         ray.tfar = rest;
       }
@@ -182,12 +183,9 @@ class SurfaceChecker {
       shadow.tfar = 1;
       if (length(shadow.dir) > 0) {
         const bool occluded = m_world.occluded(shadow, stats);
-        Ray ray = shadow;
-        const float len = length(ray.dir);
-        ray.dir = ray.dir / len;
-        ray.tfar = len;
+        // The same ray as the occlusion query (a normalised copy ends elsewhere by rounding).
         const Vec3d end = Vec3d(shadow.org) + Vec3d(shadow.dir);
-        const int hits = trace(ray, &end, stats);
+        const int hits = trace(shadow, &end, stats);
         const bool differ = inside(toGrid(Vec3d(shadow.org))) != inside(toGrid(Vec3d(shadow.org) + Vec3d(shadow.dir)));
         if (occluded != (hits > 0 || differ)) ++c.shadowMismatches;
       }

@@ -35,6 +35,7 @@ struct Hit {
   int light = -1;     // area light index of an emissive triangle, or -1
   int triangle = -1;  // triangle index inside that area light
   float b1 = 0, b2 = 0;  // barycentrics of a triangle hit
+  float spawnOffset = 0;  // iso-surfaces: how far a ray leaving the hit starts off it
   Vec3f incoming;        // direction of the ray that made the hit
   bool insideAfter = false;  // iso-surfaces: the ray is inside (value > iso) just past the hit
 };

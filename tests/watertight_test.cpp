@@ -62,7 +62,7 @@ INSTANTIATE_TEST_SUITE_P(
 // What the check sees of the other intersectors. The float analytic solver (Schwarze) divides
 // by noise on the smooth gyroid and leaks. Linear interpolation tests only a cell's entry and
 // exit, so a pair of crossings inside one cell vanishes: it does not leak (its classes still
-// telescope), but it finds fewer crossings than the reference.
+// telescope), but it finds fewer crossings than the reference; isolation finds them all.
 TEST(WatertightDetects, SchwarzeLeaksAndLinearLosesPairs) {
   const SceneDesc scene = parseSceneText(volume(R"("procedural": {"field": "gyroid", "resolution": [48, 48, 48]})", R"({"value": 0})"), "g.json");
   WatertightOptions options;
@@ -73,11 +73,15 @@ TEST(WatertightDetects, SchwarzeLeaksAndLinearLosesPairs) {
     EXPECT_TRUE(parseIntersector(name, spec, error));
     return checkWatertight(scene, spec, options).at(0).counts;
   };
-  const WatertightCounts schwarze = check("schwarze"), linear = check("linear"), reference = check("reference");
+  const WatertightCounts schwarze = check("schwarze"), linear = check("linear"), isolation = check("isolation"),
+                         reference = check("reference");
   EXPECT_GT(schwarze.parityErrors, 1000u);
   EXPECT_GT(schwarze.insideEscapes, 1000u);
   EXPECT_EQ(reference.parityErrors, 0u);
-  EXPECT_LT(double(linear.crossings), 0.99 * double(reference.crossings));
+  EXPECT_EQ(reference.crossings, reference.referenceCrossings);
+  EXPECT_EQ(linear.parityErrors, 0u);
+  EXPECT_GT(linear.referenceCrossings, linear.crossings + 100);  // pairs inside one cell
+  EXPECT_EQ(isolation.crossings, isolation.referenceCrossings);
 }
 
 TEST(WatertightDetects, CountsDoNotDependOnThreads) {
