@@ -237,18 +237,26 @@ TEST(StartClass, AStartInAnInactiveBrickOfTheOtherClass) {
   EXPECT_FALSE(surface.crossesAtInactiveStart(inFirst, dir, 0, 1e30, StartClass::Inside, &hit, stats));
 }
 
+// A world of one iso-surface, a sphere field at 0.6, and the class (value > 0.6) at a point.
+struct SphereWorld {
+  SphereWorld()
+      : world(parseSceneText(R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]},
+                                              "isosurfaces": [{"value": 0.6}]}]})",
+                             "sphere.json"),
+              IntersectorSpec{}),
+        grid(*world.volumes()[0].grid) {}
+  bool insideAt(const Vec3d& p) const { return grid.interpolate((p - grid.origin()) / grid.spacing()) > 0.6; }
+  World world;
+  const Grid& grid;
+};
+
 // The renderer's spawned rays carry the class: on through the surface, the class the hit led
 // to; back to the side the ray came from (a reflection, a shadow ray towards the light), the
 // class before it.
 TEST(StartClass, SpawnedRaysCarryTheClass) {
-  const SceneDesc scene = parseSceneText(
-      R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "isosurfaces": [{"value": 0.6}]}]})",
-      "sphere.json");
-  const World world(scene, IntersectorSpec{});
-  const Grid& grid = *world.volumes()[0].grid;
-  auto insideAt = [&](const Vec3f& p) {
-    return grid.interpolate((Vec3d(p) - grid.origin()) / grid.spacing()) > 0.6;
-  };
+  const SphereWorld sphere;
+  const World& world = sphere.world;
+  auto insideAt = [&](const Vec3f& p) { return sphere.insideAt(Vec3d(p)); };
   TraversalStats stats;
   Ray ray;
   ray.org = {0.1f, -0.2f, -5};
@@ -275,14 +283,11 @@ TEST(StartClass, SpawnedRaysCarryTheClass) {
 // after a fresh evaluation at the face. Here the ray runs nearly parallel to the face, so
 // without moving the origin onto the box, Embree would not even visit the first brick.
 TEST(StartClass, AnOriginJustOutsideTheBoxStartsOnIt) {
-  const SceneDesc scene = parseSceneText(
-      R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "isosurfaces": [{"value": 0.6}]}]})",
-      "sphere.json");
-  const World world(scene, IntersectorSpec{});
-  const Grid& grid = *world.volumes()[0].grid;
-  const double face = grid.origin().x;
-  const Vec3d onFace{face, grid.origin().y + 0.45 * 23 * grid.spacing().y, grid.origin().z + 0.55 * 23 * grid.spacing().z};
-  const bool faceInside = grid.interpolate((onFace - grid.origin()) / grid.spacing()) > 0.6;
+  const SphereWorld sphere;
+  const World& world = sphere.world;
+  const Grid& grid = sphere.grid;
+  const Vec3d onFace = grid.origin() + Vec3d{0, 0.45 * 23, 0.55 * 23} * grid.spacing();
+  const bool faceInside = sphere.insideAt(onFace);
   TraversalStats stats;
   for (bool fromInside : {faceInside, !faceInside}) {
     Ray ray;
