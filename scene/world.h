@@ -156,8 +156,9 @@ class World {
 
 // Rays leaving a hit (pbrt-v4's OffsetRayOrigin): the origin moves along the geometric normal
 // by the hit's position error bound projected on it, to the side the ray leaves to, and is
-// then rounded away from the surface. For iso-surfaces that bound comes from the
-// intersector's error bound on t; for triangles from the barycentric interpolation.
+// then rounded away from the surface. For triangles that bound comes from the barycentric
+// interpolation; for iso-surfaces from the intersector's error bound on t, capped at the
+// rounding of the float traversal's grid coordinates (Hit::spawnOffset, see World::fillIsoHit).
 // A ray leaving an iso-surface also carries the class it starts in (Ray::fromSurface): the
 // class the hit's crossing led to if it goes on through the surface (to the side of the
 // normal the incoming ray was heading to), else the class it came from. Next to a close pair
