@@ -33,6 +33,23 @@ rows.sort()
 with open(sys.argv[2] + "/points.dat", "w") as f:
     for ns, err, p99, name, raw in rows:
         f.write(f"{ns:.1f} {err:.6g} {p99:.6g} {name}\n")
+# Labels. Left panel: intersectors with the same error rate share one label ("isolation:1/2/8").
+# Right panel: one label each, alternately above and below its point so that neighbours do not
+# overwrite each other.
+groups = {}
+for ns, err, p99, name, raw in rows:
+    groups.setdefault(err, []).append((ns, name))
+with open(sys.argv[2] + "/labels_rate.dat", "w") as f:
+    for err, members in groups.items():
+        by_base = {}
+        for ns, name in members:
+            base, _, steps = name.partition(":")
+            by_base.setdefault(base, []).append(steps)
+        text = ", ".join(base + (":" + "/".join(s for s in steps if s) if any(steps) else "") for base, steps in by_base.items())
+        f.write(f"{min(ns for ns, _ in members):.1f} {err:.6g} \"{text}\"\n")
+with open(sys.argv[2] + "/labels_dt.dat", "w") as f:
+    for i, (ns, err, p99, name, raw) in enumerate(sorted(rows, key=lambda r: r[2])):
+        f.write(f"{ns:.1f} {p99:.6g} {name} {1.0 if i % 2 == 0 else -1.0}\n")
 # Pareto fronts per panel: no other intersector is both at least as fast and as accurate.
 for k, col in ((1, "front_rate.dat"), (2, "front_dt.dat")):
     front = [r for r in rows if not any(o[0] <= r[0] and o[k] <= r[k] and (o[0] < r[0] or o[k] < r[k]) for o in rows)]
@@ -48,13 +65,15 @@ set logscale y
 set grid
 set xlabel "ns per ray (single thread, whole-grid traversal)"
 set ylabel "(misses + false hits) / reference hits   (0 drawn at 1e-6)"
-set key top right
+set key center right
+set offsets 0, 90, 0, 0
 plot "$tmp/points.dat" using 1:2 with points pt 7 ps 1.2 title "intersector", \
-     "" using 1:2:4 with labels offset 0,0.8 font ",8" notitle, \
+     "$tmp/labels_rate.dat" using 1:2:3 with labels left offset 0.5,0.8 font ",8" notitle, \
      "$tmp/front_rate.dat" using 1:2 with steps lw 2 title "Pareto front"
 set ylabel "worst p99 |dt| over the iso-surfaces (cells)"
 plot "$tmp/points.dat" using 1:3 with points pt 7 ps 1.2 title "intersector", \
-     "" using 1:3:4 with labels offset 0,0.8 font ",8" notitle, \
+     "$tmp/labels_dt.dat" using 1:(\$4 > 0 ? \$2 : 1/0):3 with labels left offset 0.5,0.7 font ",8" notitle, \
+     "$tmp/labels_dt.dat" using 1:(\$4 < 0 ? \$2 : 1/0):3 with labels left offset 0.5,-0.7 font ",8" notitle, \
      "$tmp/front_dt.dat" using 1:2 with steps lw 2 title "Pareto front"
 unset multiplot
 GP
