@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <chrono>
@@ -87,6 +88,16 @@ std::string withSuffix(const std::string& path, const std::string& suffix) {
 void onSigint(int) {
   requestStop();
   std::signal(SIGINT, SIG_DFL);  // a second Ctrl-C ends the process at once
+}
+
+// The shortest decimal that reads back as the same double (0.28, not 0.28000000000000003).
+std::string jsonNumber(double v) {
+  char buf[32];
+  for (int digits = 15; digits <= 17; ++digits) {
+    std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+    if (std::strtod(buf, nullptr) == v) break;
+  }
+  return buf;
 }
 
 std::string jsonString(const std::string& s) {
@@ -393,7 +404,7 @@ int watertight(const CheckFlags& flags) {
     row(std::to_string(r.volume).c_str(), iso, r.counts);
     total.add(r.counts);
     char head[200];
-    std::snprintf(head, sizeof head, "    {\"volume\": %d, \"iso\": %.17g, \"intersector\": %s, ", r.volume, r.iso,
+    std::snprintf(head, sizeof head, "    {\"volume\": %d, \"iso\": %s, \"intersector\": %s, ", r.volume, jsonNumber(r.iso).c_str(),
                   jsonString(r.intersector).c_str());
     surfaces += (surfaces.empty() ? "" : ",\n") + std::string(head) + counts(r.counts) + "}";
   }
@@ -441,11 +452,11 @@ int bench(const CheckFlags& flags) {
           std::fflush(stdout);
           char buf[600];
           std::snprintf(buf, sizeof buf,
-                        "    {\"volume\": %zu, \"iso\": %.17g, \"rays\": %s, \"intersector\": %s, \"count\": %llu, "
+                        "    {\"volume\": %zu, \"iso\": %s, \"rays\": %s, \"intersector\": %s, \"count\": %llu, "
                         "\"reference_hits\": %llu, \"tangent\": %llu, \"misses\": %llu, \"false_hits\": %llu, "
                         "\"miss_rate\": %.6g, \"false_hit_rate\": %.6g, \"median_dt\": %.6g, \"p99_dt\": %.6g, "
                         "\"max_dt\": %.6g, \"ns_per_ray\": %.2f}",
-                        v, iso.value, jsonString(kindName).c_str(), jsonString(intersectorName(spec)).c_str(),
+                        v, jsonNumber(iso.value).c_str(), jsonString(kindName).c_str(), jsonString(intersectorName(spec)).c_str(),
                         (unsigned long long)r.rays, (unsigned long long)r.referenceHits,
                         (unsigned long long)r.tangentOnly, (unsigned long long)r.misses,
                         (unsigned long long)r.falseHits, r.referenceHits ? double(r.misses) / r.referenceHits : 0.0,

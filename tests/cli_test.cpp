@@ -110,6 +110,9 @@ TEST(Cli, WatertightAndBenchJson) {
   }
   EXPECT_EQ(w.at("surfaces")[0].at("intersector"), "linear");
   EXPECT_EQ(w.at("surfaces")[1].at("iso").get<double>(), 0.3);
+  std::ifstream raw(dir + "/w_out.json");
+  const std::string text((std::istreambuf_iterator<char>(raw)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\"iso\": 0.3,"), std::string::npos);  // the shortest form, not 0.29999999999999999
   EXPECT_EQ(w.at("total").at("rays"), 4000);
   EXPECT_GT(w.at("total").at("crossings").get<uint64_t>(), 1000u);
 
