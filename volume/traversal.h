@@ -104,11 +104,12 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
     // A ray continuing from a hit may start on the box's boundary heading out (IsoSurface moves
     // starts that left the box onto it), where rounding in planeT can put t1 just below t0.
     // Its one zero-length segment still compares the given class with the field there.
-    if (start == StartClass::Unknown || entryAxis >= 0 || !(t0 - t1 <= Real(4) * std::numeric_limits<Real>::epsilon() * (std::fabs(t0) + Real(1))))
+    const Real eps = Real(4) * std::numeric_limits<Real>::epsilon();
+    if (start == StartClass::Unknown || entryAxis >= 0 || !(t0 - t1 <= eps * (std::fabs(t0) + Real(1))))
       return false;
     for (int a = 0; a < 3; ++a) {
       const Real p = ray.org[a] + t0 * ray.dir[a];
-      const Real tol = Real(4) * std::numeric_limits<Real>::epsilon() * (std::fabs(p) + Real(1));
+      const Real tol = eps * (std::fabs(p) + Real(1));
       if (!(p >= Real(lo[a]) - tol && p <= Real(hi[a]) + tol)) return false;
     }
     t1 = t0;
