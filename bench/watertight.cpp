@@ -83,7 +83,7 @@ class SurfaceChecker {
       ray = spawnRay(hit, ray.dir);
       if (end) {
         const Vec3d d(ray.dir);
-        const float rest = float(dot(*end - (ray.org64 ? *ray.org64 : Vec3d(ray.org)), d) / dot(d, d));
+        const float rest = float(dot(*end - ray.origin(), d) / dot(d, d));
         if (!(rest > 0)) break;
         ray.tfar = rest;
       }
@@ -96,7 +96,7 @@ class SurfaceChecker {
   // a spawned ray that lies outside the box is first moved onto it, as World does
   // (World::startInsideVolume): a chain of rays that left the box in a spawn offset ends there.
   bool exitPoint(const Ray& ray, bool spawned, Vec3d& exit) const {
-    const Vec3d world = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+    const Vec3d world = ray.origin();
     Vec3d o = toGrid(world);
     const Vec3d d = toGrid(world + Vec3d(ray.dir)) - o;
     if (spawned)

@@ -13,6 +13,7 @@ struct Ray {
   // The origin in double when it has more precision than `org` (rays spawned from iso-surface
   // hits); iso-surface queries start from it. Empty: `org` is exact.
   std::optional<Vec3d> org64;
+  Vec3d origin() const { return org64 ? *org64 : Vec3d(org); }
   // A ray spawned from an iso-surface hit: that surface's index, and whether the ray starts
   // on its inside (value > iso). The surface's query takes that class as given at the origin
   // instead of evaluating the field there (StartClass, volume/traversal.h).

@@ -409,6 +409,18 @@ const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
   return m_top[hit.geomID];
 }
 
+namespace {
+
+StartClass startClassOf(const Ray& ray) { return ray.fromInside ? StartClass::Inside : StartClass::Outside; }
+
+void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, IsoRayContext& context) {
+  if (ray.fromSurface < 0) return;
+  context.startSurface = surfaces[ray.fromSurface].surface.get();
+  context.start = startClassOf(ray);
+}
+
+}  // namespace
+
 // The iso-surface hit at `t` on `ray`; `normal` in the surface's object space.
 void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal,
                        bool insideAfter, const Transform* toWorld, Hit& hit) const {
@@ -419,7 +431,7 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   hit.tError = tError;
   hit.insideAfter = insideAfter;
   // In double from the double origin: the bound is the intersector's, plus double rounding.
-  const Vec3d org = ray.org64 ? *ray.org64 : Vec3d(ray.org), dir(ray.dir);
+  const Vec3d org = ray.origin(), dir(ray.dir);
   hit.position64 = org + dir * t;
   hit.position = Vec3f(hit.position64);
   const Vec3d a = absv(hit.position64);
@@ -452,11 +464,10 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
 bool World::crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const {
   if (ray.fromSurface < 0) return false;
   const IsoSurface& surface = *m_surfaces[ray.fromSurface].surface;
-  const Vec3d org = surface.objectOrigin(ray.org64 ? *ray.org64 : Vec3d(ray.org));
+  const Vec3d org = surface.objectOrigin(ray.origin());
   const Vec3d dir = surface.objectDirection(Vec3d(ray.dir));
-  const StartClass start = ray.fromInside ? StartClass::Inside : StartClass::Outside;
   SurfaceHit sh;
-  if (!surface.crossesAtInactiveStart(org, dir, ray.tnear, ray.tfar, start, hit ? &sh : nullptr, stats))
+  if (!surface.crossesAtInactiveStart(org, dir, ray.tnear, ray.tfar, startClassOf(ray), hit ? &sh : nullptr, stats))
     return false;
   if (hit) {
     *hit = Hit();
@@ -477,7 +488,7 @@ Ray World::startInsideVolume(const Ray& ray) const {
   const SurfaceInfo& info = m_surfaces[ray.fromSurface];
   const VolumeInfo& volume = m_volumes[info.volume];
   const Grid& grid = *volume.grid;
-  const Vec3d world = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  const Vec3d world = ray.origin();
   const Vec3d o = info.surface->objectOrigin(world);
   const Vec3d lo = grid.origin();
   const Vec3d hi = lo + Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
@@ -489,15 +500,6 @@ Ray World::startInsideVolume(const Ray& ray) const {
   return moved;
 }
 
-namespace {
-
-void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, IsoRayContext& context) {
-  if (ray.fromSurface < 0) return;
-  context.startSurface = surfaces[ray.fromSurface].surface.get();
-  context.start = ray.fromInside ? StartClass::Inside : StartClass::Outside;
-}
-
-}  // namespace
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   if (ray.fromSurface < 0) return trace(ray, hit, stats);
@@ -507,7 +509,7 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 
 bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   IsoRayContext context;
-  const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  const Vec3d origin = ray.origin();
   context.origin = &origin;
   startFromSurface(ray, m_surfaces, context);
   RTCRayHit rh{};
@@ -596,7 +598,7 @@ bool World::occluded(const Ray& ray, TraversalStats& stats) const {
 
 bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   IsoRayContext context;
-  const Vec3d origin = ray.org64 ? *ray.org64 : Vec3d(ray.org);
+  const Vec3d origin = ray.origin();
   context.origin = &origin;
   startFromSurface(ray, m_surfaces, context);
   RTCRay r = toEmbree(ray);
@@ -701,7 +703,7 @@ Ray spawnRay(const Hit& hit, const Vec3f& dir) {
 
 Ray spawnRayTo(const Hit& hit, const Vec3f& target) {
   Ray r = leaving(hit, target - hit.position);
-  r.dir = Vec3f(Vec3d(target) - (r.org64 ? *r.org64 : Vec3d(r.org)));
+  r.dir = Vec3f(Vec3d(target) - r.origin());
   r.tfar = 1 - 1e-4f;
   return r;
 }
