@@ -19,7 +19,7 @@
 #include <memory>
 #include <string>
 
-#include "renderer/sampler.h"
+#include "integrators/sampler.h"
 #include "scene/world.h"
 
 namespace iso {

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Installs the Debian packages isotrace needs (idempotent; quiet when nothing is missing)
 # and configures + builds a Release build in ./build. openimageio-tools is listed because
-# Debian 12's OpenImageIO CMake config refers to its binaries and fails without them.
+# Debian 12's OpenImageIO CMake config refers to its binaries and fails without them;
+# libopenvdb-dev (with libboost-iostreams-dev, which its CMake module needs) builds
+# `isotrace mesh` (OpenVDB's volumeToMesh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -1,4 +1,4 @@
-// glTF import against the real models of ../shared/data/meshes (counts and values computed
+// glTF import against the real models of examples/data/meshes (counts and values computed
 // independently from the files with Python), small files written here for what the real
 // ones lack, and malformed files that must be refused cleanly.
 #include <gtest/gtest.h>
