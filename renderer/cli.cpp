@@ -16,6 +16,8 @@
 #include "bench/accuracy.h"
 #include "bench/watertight.h"
 #include "renderer/render.h"
+#include "scene/gltf.h"
+#include "volume/iso_mesh.h"
 #include "volume/input_error.h"
 
 namespace iso {
@@ -468,6 +470,72 @@ int bench(const CheckFlags& flags) {
   return 0;
 }
 
+struct MeshFlags {
+  std::string scene, output;
+  int volume = 0, surface = 0;
+};
+
+// `isotrace mesh`: one iso-surface as triangles in world space, with the surface's material.
+int exportMesh(const MeshFlags& flags) {
+  const SceneDesc scene = parseSceneFile(flags.scene);
+  if (flags.output.empty()) throw InputError("-o", "", "an output file is needed (-o NAME.glb or NAME.gltf)");
+  const std::string ext = std::filesystem::path(flags.output).extension().string();
+  if (ext != ".glb" && ext != ".gltf") throw InputError(flags.output, "", "the mesh output must be .glb or .gltf");
+  if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume");
+  if (flags.volume < 0 || size_t(flags.volume) >= scene.volumes.size())
+    throw InputError("--volume", "", "no volume " + std::to_string(flags.volume) + " (the scene has " +
+                                         std::to_string(scene.volumes.size()) + ", counted from 0)");
+  const VolumeDesc& desc = scene.volumes[flags.volume];
+  if (flags.surface < 0 || size_t(flags.surface) >= desc.isosurfaces.size())
+    throw InputError("--surface", "", "no iso-surface " + std::to_string(flags.surface) + " in " + desc.where +
+                                          " (it has " + std::to_string(desc.isosurfaces.size()) + ", counted from 0)");
+  const IsoSurfaceDesc& surface = desc.isosurfaces[flags.surface];
+  const Grid grid = loadVolume(desc);
+  const IsoMesh mesh = extractIsoMesh(grid, surface.value);
+  const std::string where = desc.where + "/isosurfaces/" + std::to_string(flags.surface);
+  if (mesh.indices.empty()) {
+    float lo, hi;
+    grid.range(lo, hi);
+    throw InputError(flags.scene, where + "/value",
+                     "iso value " + jsonNumber(surface.value) + " gives no surface (the volume's values span " +
+                         jsonNumber(lo) + " to " + jsonNumber(hi) + ")");
+  }
+  GltfMeshOut out;
+  out.name = std::filesystem::path(flags.scene).stem().string() + where;
+  // Grid coordinates -> the volume's space -> world; normals out of the solid.
+  const Vec3d origin = grid.origin(), spacing = grid.spacing();
+  const double side = surface.solidAbove ? -1 : 1;
+  out.positions.reserve(mesh.positions.size());
+  out.normals.reserve(mesh.positions.size());
+  for (size_t i = 0; i < mesh.positions.size(); ++i) {
+    out.positions.push_back(Vec3f(desc.transform.point(origin + mesh.positions[i] * spacing)));
+    const Vec3d n = desc.transform.normal(mesh.gradients[i] / spacing) * side;
+    const double len = length(n);
+    out.normals.push_back(len > 0 && std::isfinite(len) ? Vec3f(n / len) : Vec3f{0, 0, 1});
+  }
+  out.indices = mesh.indices;
+  // The mesh is wound counter-clockwise seen from lower values; glTF's front is the solid's
+  // outside, which is the higher side for a solid below the iso value.
+  if (!surface.solidAbove)
+    for (size_t t = 0; t < out.indices.size(); t += 3) std::swap(out.indices[t + 1], out.indices[t + 2]);
+  if (desc.transform.determinant() < 0)  // a mirror flips the winding
+    for (size_t t = 0; t < out.indices.size(); t += 3) std::swap(out.indices[t + 1], out.indices[t + 2]);
+  if (!surface.material.empty()) {
+    const MaterialDesc& m = scene.materials.at(surface.material);
+    out.color = Vec3f(m.color);
+    out.metallic = m.type == MaterialType::Conductor ? 1.f : float(m.metallic);
+    out.roughness = float(m.roughness);
+  } else if (surface.color) {
+    out.color = Vec3f(*surface.color);
+    out.roughness = 1;
+  }
+  saveGltfMesh(flags.output, out);
+  std::printf("%s\n", flags.output.c_str());
+  std::fprintf(stderr, "isotrace: %s iso %s: %zu triangles, %zu vertices\n", where.c_str(),
+               jsonNumber(surface.value).c_str(), out.indices.size() / 3, out.positions.size());
+  return 0;
+}
+
 }  // namespace
 
 int runCommandLine(int argc, char** argv) {
@@ -506,6 +574,12 @@ int runCommandLine(int argc, char** argv) {
   benchCmd->add_option("--rays", benchFlags.rays, "rays of each kind per iso-surface and intersector (default 20000)");
   benchCmd->add_option("--seed", benchFlags.seed, "random seed (default 1)");
   benchCmd->add_option("--json", benchFlags.json, "write the results as JSON");
+  MeshFlags meshFlags;
+  CLI::App* meshCmd = app.add_subcommand("mesh", "write one iso-surface as a triangle mesh (glTF, world space)");
+  meshCmd->add_option("scene", meshFlags.scene, "scene file (JSON)")->required();
+  meshCmd->add_option("-o,--output", meshFlags.output, "output mesh, .glb or .gltf")->required();
+  meshCmd->add_option("--volume", meshFlags.volume, "volume index in the scene, from 0 (default 0)");
+  meshCmd->add_option("--surface", meshFlags.surface, "iso-surface index in that volume, from 0 (default 0)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -521,6 +595,7 @@ int runCommandLine(int argc, char** argv) {
     if (*infoCmd) return info(infoScene);
     if (*watertightCmd) return watertight(check);
     if (*benchCmd) return bench(benchFlags);
+    if (*meshCmd) return exportMesh(meshFlags);
   } catch (const InputError& e) {
     std::fprintf(stderr, "isotrace: %s\n", e.what());
     return 2;

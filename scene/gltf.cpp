@@ -565,3 +565,100 @@ GltfModel loadGltf(const std::string& path) {
 }
 
 }  // namespace iso
+
+namespace iso {
+
+void saveGltfMesh(const std::string& path, const GltfMeshOut& mesh) {
+  const std::filesystem::path out(path);
+  const std::string ext = out.extension().string();
+  if (ext != ".glb" && ext != ".gltf") throw InputError(path, "", "the mesh output must be .glb or .gltf");
+  if (out.has_parent_path() && !std::filesystem::is_directory(out.parent_path()))
+    throw InputError(path, "", "output directory does not exist");
+  if (mesh.indices.empty()) throw InputError(path, "", "no triangles to write");
+
+  tinygltf::Model model;
+  model.asset.version = "2.0";
+  model.asset.generator = "isotrace mesh";
+  tinygltf::Buffer buffer;
+  auto append = [&](const void* data, size_t bytes) {
+    const size_t offset = buffer.data.size();
+    const auto* p = static_cast<const unsigned char*>(data);
+    buffer.data.insert(buffer.data.end(), p, p + bytes);
+    buffer.data.resize((buffer.data.size() + 3) & ~size_t(3));  // 4-byte alignment
+    return offset;
+  };
+  auto view = [&](const void* data, size_t bytes, int target) {
+    tinygltf::BufferView v;
+    v.buffer = 0;
+    v.byteOffset = append(data, bytes);
+    v.byteLength = bytes;
+    v.target = target;
+    model.bufferViews.push_back(v);
+    return int(model.bufferViews.size() - 1);
+  };
+  auto accessor = [&](int bufferView, int componentType, int type, size_t count) {
+    tinygltf::Accessor a;
+    a.bufferView = bufferView;
+    a.componentType = componentType;
+    a.type = type;
+    a.count = count;
+    model.accessors.push_back(a);
+    return int(model.accessors.size() - 1);
+  };
+  const size_t n = mesh.positions.size();
+  const int positions = accessor(view(mesh.positions.data(), n * sizeof(Vec3f), TINYGLTF_TARGET_ARRAY_BUFFER),
+                                 TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, n);
+  Vec3f lo = mesh.positions[0], hi = mesh.positions[0];
+  for (const Vec3f& p : mesh.positions) { lo = min(lo, p); hi = max(hi, p); }
+  model.accessors[positions].minValues = {lo.x, lo.y, lo.z};  // required for POSITION
+  model.accessors[positions].maxValues = {hi.x, hi.y, hi.z};
+  const int normals = accessor(view(mesh.normals.data(), n * sizeof(Vec3f), TINYGLTF_TARGET_ARRAY_BUFFER),
+                               TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, n);
+  const int indices = accessor(view(mesh.indices.data(), mesh.indices.size() * sizeof(uint32_t),
+                                    TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER),
+                               TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT, TINYGLTF_TYPE_SCALAR, mesh.indices.size());
+  model.buffers.push_back(std::move(buffer));
+
+  tinygltf::Material material;
+  material.name = mesh.name;
+  material.pbrMetallicRoughness.baseColorFactor = {mesh.color.x, mesh.color.y, mesh.color.z, 1.0};
+  material.pbrMetallicRoughness.metallicFactor = mesh.metallic;
+  material.pbrMetallicRoughness.roughnessFactor = mesh.roughness;
+  material.doubleSided = mesh.doubleSided;
+  model.materials.push_back(material);
+
+  tinygltf::Primitive primitive;
+  primitive.attributes["POSITION"] = positions;
+  primitive.attributes["NORMAL"] = normals;
+  primitive.indices = indices;
+  primitive.material = 0;
+  primitive.mode = TINYGLTF_MODE_TRIANGLES;
+  tinygltf::Mesh m;
+  m.name = mesh.name;
+  m.primitives.push_back(primitive);
+  model.meshes.push_back(m);
+  tinygltf::Node node;
+  node.mesh = 0;
+  node.name = mesh.name;
+  model.nodes.push_back(node);
+  tinygltf::Scene scene;
+  scene.nodes.push_back(0);
+  model.scenes.push_back(scene);
+  model.defaultScene = 0;
+
+  const std::string temp = path + ".partial" + ext;
+  tinygltf::TinyGLTF writer;
+  const bool binary = ext == ".glb";
+  if (!writer.WriteGltfSceneToFile(&model, temp, true, true, !binary, binary)) {
+    std::remove(temp.c_str());
+    throw InputError(path, "", "cannot write");
+  }
+  std::error_code error;
+  std::filesystem::rename(temp, path, error);
+  if (error) {
+    std::remove(temp.c_str());
+    throw InputError(path, "", "cannot write: " + error.message());
+  }
+}
+
+}  // namespace iso

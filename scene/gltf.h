@@ -65,4 +65,18 @@ struct GltfModel {
 // Throws InputError naming the file and the JSON path of what is wrong.
 GltfModel loadGltf(const std::string& path);
 
+// One triangle mesh with one metallic-roughness material, in world space.
+struct GltfMeshOut {
+  std::string name;
+  std::vector<Vec3f> positions, normals;  // normals unit, one per position
+  std::vector<uint32_t> indices;          // three per triangle, counter-clockwise = front
+  Vec3f color{0.8f, 0.8f, 0.8f};
+  float metallic = 0, roughness = 0.5f;
+  bool doubleSided = false;
+};
+
+// Writes `mesh` as binary glTF (.glb) or as .gltf with its buffer embedded, through a
+// temporary file: a failed write leaves nothing behind. Throws InputError.
+void saveGltfMesh(const std::string& path, const GltfMeshOut& mesh);
+
 }  // namespace iso

@@ -391,7 +391,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
         Field field;
         if (!pr.has("field")) pr.fail(pr.at("field"), "required key is missing");
         if (!parseField(name, field))
-          pr.fail(pr.at("field"), "unknown field '" + name + "' (sphere, torus, gyroid, marschner_lobb)");
+          pr.fail(pr.at("field"), "unknown field '" + name + "' (sphere, torus, gyroid, marschner_lobb, gyroid_ball)");
         v.field = field;
         if (const Json* res = pr.get("resolution")) {
           if (!res->is_array() || res->size() != 3) pr.fail(pr.at("resolution"), "expected an array of 3 whole numbers");

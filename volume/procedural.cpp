@@ -9,6 +9,7 @@ bool parseField(const std::string& name, Field& field) {
   else if (name == "torus") field = Field::Torus;
   else if (name == "gyroid") field = Field::Gyroid;
   else if (name == "marschner_lobb") field = Field::MarschnerLobb;
+  else if (name == "gyroid_ball") field = Field::GyroidBall;
   else return false;
   return true;
 }
@@ -24,6 +25,12 @@ double evalField(Field field, const Vec3d& p) {
       const double k = 3 * M_PI;
       return std::sin(k * p.x) * std::cos(k * p.y) + std::sin(k * p.y) * std::cos(k * p.z) +
              std::sin(k * p.z) * std::cos(k * p.x);
+    }
+    case Field::GyroidBall: {
+      // The gyroid cut to a ball of radius 0.9: the solids below 0 of both, intersected (max).
+      // The distance term is scaled by k so that both have about the same slope at 0.
+      const double k = 3 * M_PI;
+      return std::max(evalField(Field::Gyroid, p), k * (length(p) - 0.9));
     }
     case Field::MarschnerLobb: {
       // Marschner & Lobb 1994, "An evaluation of reconstruction filters for volume rendering".

@@ -1,12 +1,12 @@
 #pragma once
-// Analytic test fields sampled on the grid points of [-1, 1]^3 (DESIGN.md, "Scene file").
+// Analytic test fields sampled on the grid points of [-1, 1]^3 (formulas: docs/scene-format.md).
 #include <string>
 
 #include "volume/grid.h"
 
 namespace iso {
 
-enum class Field { Sphere, Torus, Gyroid, MarschnerLobb };
+enum class Field { Sphere, Torus, Gyroid, MarschnerLobb, GyroidBall };
 
 bool parseField(const std::string& name, Field& field);
 double evalField(Field field, const Vec3d& p);

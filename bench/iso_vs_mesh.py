@@ -1,0 +1,163 @@
+#!/usr/bin/env python3
+"""The exact iso-surface against the same surface as triangles, rendered the same way.
+
+For each scene (default: bench/scenes/*.json) every iso-surface is extracted with
+`isotrace mesh` and a twin scene is written with those meshes (same materials) in place of
+the volumes; then both are rendered with the same camera, lights, spp and seed, interleaved
+(iso, mesh, iso, mesh, ...) so that the shared machine's noise hits both alike. Modes:
+
+  path     the scene's own path tracing (16 spp, depth 4), 2 threads
+  camera   the normals integrator, 1 thread: camera rays only
+  shadow   ambient occlusion with an unbounded distance, 1 thread: camera + occlusion rays
+
+Prints per scene and mode the median render seconds, rays per second, the iso/mesh ratio of
+the medians and the relative image difference (mean |iso - mesh| / mean mesh, path mode).
+Usage: bench/iso_vs_mesh.py [--runs N] [--resolution WxH] [--modes path,camera,shadow]
+       [--json FILE] [SCENE.json ...]
+"""
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ISOTRACE = os.path.join(ROOT, "build", "isotrace")
+
+
+def run(args):
+    r = subprocess.run(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if r.returncode != 0:
+        sys.exit("iso_vs_mesh: %s failed:\n%s" % (" ".join(args), r.stderr))
+    return r.stdout
+
+
+def absolute(scene_path, file):
+    return file if os.path.isabs(file) else os.path.abspath(os.path.join(os.path.dirname(scene_path), file))
+
+
+def twin_scenes(scene_path, work):
+    """The scene with absolute paths (iso), and its twin with the volumes as meshes (mesh)."""
+    with open(scene_path) as f:
+        scene = json.load(f)
+    for m in scene.get("meshes", []):
+        if "file" in m:
+            m["file"] = absolute(scene_path, m["file"])
+    for v in scene.get("volumes", []):
+        if "file" in v:
+            v["file"] = absolute(scene_path, v["file"])
+    name = os.path.splitext(os.path.basename(scene_path))[0]
+    iso_path = os.path.join(work, name + ".iso.json")
+    with open(iso_path, "w") as f:
+        json.dump(scene, f)
+    mesh = json.loads(json.dumps(scene))
+    mesh["volumes"] = []
+    triangles = 0
+    for vi, v in enumerate(scene.get("volumes", [])):
+        for si, s in enumerate(v["isosurfaces"]):
+            glb = os.path.join(work, "%s.v%d.s%d.glb" % (name, vi, si))
+            r = subprocess.run([ISOTRACE, "mesh", iso_path, "-o", glb, "--volume", str(vi), "--surface", str(si)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            if r.returncode != 0:
+                sys.exit("iso_vs_mesh: isotrace mesh failed: " + r.stderr)
+            triangles += int(r.stderr.split(": ")[-1].split(" triangles")[0])
+            entry = {"file": glb}
+            if "material" in s:
+                entry["material"] = s["material"]
+            mesh.setdefault("meshes", []).append(entry)
+    mesh_path = os.path.join(work, name + ".mesh.json")
+    with open(mesh_path, "w") as f:
+        json.dump(mesh, f)
+    return name, iso_path, mesh_path, triangles
+
+
+def mode_scene(path, mode, work):
+    """A copy of the scene for one mode (path: unchanged)."""
+    if mode == "path":
+        return path, []
+    with open(path) as f:
+        scene = json.load(f)
+    if mode == "camera":
+        scene["integrator"] = {"type": "normals", "spp": 4}
+    else:
+        scene["integrator"] = {"type": "ao", "spp": 4, "ao_distance": 1e30}
+    out = path.replace(".json", "." + mode + ".json")
+    with open(out, "w") as f:
+        json.dump(scene, f)
+    return out, ["--threads", "1"]
+
+
+def render(scene, extra, resolution, image, stats):
+    run([ISOTRACE, "render", scene, "-o", image, "--resolution", resolution, "--quiet", "--seed", "7",
+         "--stats", stats] + extra)
+    with open(stats) as f:
+        s = json.load(f)
+    return s["seconds"]["render"], s["rays"]
+
+
+def image_difference(a, b):
+    """mean |a - b| over the mean of b, from oiiotool's statistics."""
+    def mean(args):
+        out = run(["oiiotool"] + args + ["--printstats"])
+        for line in out.splitlines():
+            if "Stats Avg:" in line:
+                values = [float(x) for x in line.split(":")[1].split()[:3]]
+                return sum(values) / len(values)
+        sys.exit("iso_vs_mesh: no statistics from oiiotool")
+    return mean([a, b, "--absdiff"]) / max(mean([b]), 1e-30)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("scenes", nargs="*")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--resolution", default="960x540")
+    parser.add_argument("--modes", default="path,camera,shadow")
+    parser.add_argument("--json")
+    args = parser.parse_args()
+    if args.runs < 1:
+        sys.exit("iso_vs_mesh: --runs must be at least 1")
+    scenes = args.scenes or sorted(
+        os.path.join(ROOT, "bench", "scenes", f) for f in os.listdir(os.path.join(ROOT, "bench", "scenes")))
+    modes = args.modes.split(",")
+    for m in modes:
+        if m not in ("path", "camera", "shadow"):
+            sys.exit("iso_vs_mesh: unknown mode '%s' (path, camera, shadow)" % m)
+    results = []
+    with tempfile.TemporaryDirectory() as work:
+        print("%-12s %-7s %9s %9s %10s %10s %7s %9s %10s" %
+              ("scene", "mode", "iso s", "mesh s", "iso Mr/s", "mesh Mr/s", "ratio", "img diff", "triangles"))
+        for scene in scenes:
+            name, iso_path, mesh_path, triangles = twin_scenes(scene, work)
+            for mode in modes:
+                times = {"iso": [], "mesh": []}
+                rays = {}
+                for r in range(args.runs):
+                    for kind, path in (("iso", iso_path), ("mesh", mesh_path)):
+                        s, extra = mode_scene(path, mode, work)
+                        image = os.path.join(work, "%s.%s.%s.exr" % (name, mode, kind))
+                        seconds, ray_counts = render(s, extra, args.resolution, image,
+                                                     os.path.join(work, "stats.json"))
+                        times[kind].append(seconds)
+                        rays[kind] = ray_counts
+                med = {k: statistics.median(v) for k, v in times.items()}
+                rate = {k: rays[k]["total"] / med[k] / 1e6 for k in med}
+                diff = image_difference(os.path.join(work, "%s.%s.iso.exr" % (name, mode)),
+                                        os.path.join(work, "%s.%s.mesh.exr" % (name, mode))) if mode == "path" else None
+                ratio = med["iso"] / med["mesh"]
+                print("%-12s %-7s %9.3f %9.3f %10.2f %10.2f %7.2f %9s %10d" %
+                      (name, mode, med["iso"], med["mesh"], rate["iso"], rate["mesh"], ratio,
+                       "%.4f" % diff if diff is not None else "-", triangles), flush=True)
+                results.append({"scene": name, "mode": mode, "iso_seconds": times["iso"], "mesh_seconds": times["mesh"],
+                                "iso_median": med["iso"], "mesh_median": med["mesh"], "ratio": ratio,
+                                "iso_rays": rays["iso"], "mesh_rays": rays["mesh"], "image_difference": diff,
+                                "triangles": triangles})
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"resolution": args.resolution, "runs": args.runs, "results": results}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

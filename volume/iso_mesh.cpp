@@ -1,0 +1,96 @@
+#include "volume/iso_mesh.h"
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Dense.h>
+#include <openvdb/tools/VolumeToMesh.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "volume/cell_cubic.h"
+
+namespace iso {
+namespace {
+
+// The gradient of the trilinear field at continuous grid coordinates (cell-local units are
+// grid units), the same one the intersector shades with.
+Vec3d gradientAt(const Grid& grid, const Vec3d& p) {
+  const Vec3i d = grid.dims();
+  int c[3];
+  Vec3f local;
+  for (int a = 0; a < 3; ++a) {
+    const double x = std::clamp(p[a], 0.0, double(d[a] - 1));
+    c[a] = std::min(int(std::floor(x)), d[a] - 2);
+    local[a] = float(x - c[a]);
+  }
+  float g[8];
+  grid.cellCorners(c[0], c[1], c[2], g);
+  return Vec3d(trilinearGradient(g, local));
+}
+
+}  // namespace
+
+IsoMesh extractIsoMesh(const Grid& grid, double iso) {
+  openvdb::initialize();
+  const Vec3i d = grid.dims();
+  // A dense float copy in index space (voxel (i, j, k) = sample (i, j, k)), made sparse by
+  // OpenVDB; the background lies below the iso value, so the only surface it adds is the cap
+  // outside the box, dropped below.
+  const openvdb::CoordBBox box(openvdb::Coord(0, 0, 0), openvdb::Coord(d.x - 1, d.y - 1, d.z - 1));
+  openvdb::FloatGrid::Ptr vdb = openvdb::FloatGrid::create(float(iso) - 1.f);
+  {
+    openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(box);
+    // LayoutXYZ is z fastest; the grid is x fastest.
+    for (int z = 0; z < d.z; ++z)
+      for (int y = 0; y < d.y; ++y)
+        for (int x = 0; x < d.x; ++x) dense.setValue(x, y, z, grid.value(x, y, z));
+    openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/0.f);
+  }
+  std::vector<openvdb::Vec3s> points;
+  std::vector<openvdb::Vec3I> triangles;
+  std::vector<openvdb::Vec4I> quads;
+  openvdb::tools::volumeToMesh(*vdb, points, triangles, quads, iso, /*adaptivity=*/0.0);
+
+  IsoMesh mesh;
+  // Vertices outside the sample box belong to the caps against the background.
+  const double slack = 1e-4;
+  std::vector<char> inBox(points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    const openvdb::Vec3s& p = points[i];
+    inBox[i] = p.x() >= -slack && p.y() >= -slack && p.z() >= -slack && p.x() <= d.x - 1 + slack &&
+               p.y() <= d.y - 1 + slack && p.z() <= d.z - 1 + slack;
+  }
+  std::vector<uint32_t> remap(points.size(), UINT32_MAX);
+  auto vertex = [&](uint32_t i) {
+    if (remap[i] == UINT32_MAX) {
+      remap[i] = uint32_t(mesh.positions.size());
+      const Vec3d p{points[i].x(), points[i].y(), points[i].z()};
+      mesh.positions.push_back(p);
+      mesh.gradients.push_back(gradientAt(grid, p));
+    }
+    return remap[i];
+  };
+  auto triangle = [&](uint32_t a, uint32_t b, uint32_t c) {
+    if (!inBox[a] || !inBox[b] || !inBox[c]) return;
+    mesh.indices.insert(mesh.indices.end(), {vertex(a), vertex(b), vertex(c)});
+  };
+  for (const openvdb::Vec3I& t : triangles) triangle(t[0], t[1], t[2]);
+  for (const openvdb::Vec4I& q : quads) {
+    triangle(q[0], q[1], q[2]);
+    triangle(q[0], q[2], q[3]);
+  }
+  // OpenVDB's winding follows its own inside convention (values below iso); make it agree
+  // with the gradient: counter-clockwise seen from lower values.
+  double agreement = 0;
+  for (size_t t = 0; t < mesh.indices.size(); t += 3) {
+    const Vec3d& a = mesh.positions[mesh.indices[t]];
+    const Vec3d n = cross(mesh.positions[mesh.indices[t + 1]] - a, mesh.positions[mesh.indices[t + 2]] - a);
+    agreement += dot(n, mesh.gradients[mesh.indices[t]] + mesh.gradients[mesh.indices[t + 1]] +
+                            mesh.gradients[mesh.indices[t + 2]]);
+  }
+  if (agreement > 0)
+    for (size_t t = 0; t < mesh.indices.size(); t += 3) std::swap(mesh.indices[t + 1], mesh.indices[t + 2]);
+  return mesh;
+}
+
+}  // namespace iso
