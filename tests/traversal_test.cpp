@@ -46,9 +46,9 @@ TEST(Traversal, BricksAgreeWithTheWholeGridBitForBit) {
       const bool a = surface.intersect(org, dir, 0, 1e30, whole, stats);
       bool b = false;
       double tfar = 1e30;
-      for (uint32_t id : surface.activeBricks()) {
+      for (uint32_t prim = 0; prim < surface.activeBricks().size(); ++prim) {
         SurfaceHit h;
-        if (surface.intersectBrick(id, org, dir, 0, tfar, h, stats)) { brick = h; tfar = h.t; b = true; }
+        if (surface.intersectBrick(prim, org, dir, 0, tfar, h, stats)) { brick = h; tfar = h.t; b = true; }
       }
       ASSERT_EQ(a, b) << "ray " << i;
       if (!a) continue;

@@ -32,6 +32,8 @@ class Grid {
   void setOrigin(Vec3d origin) { m_origin = origin; }
   void setSpacing(Vec3d spacing) { m_spacing = spacing; }
   ScalarType type() const { return m_type; }
+  // The samples, of type type(), x fastest.
+  const void* data() const { return m_data; }
   size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
   size_t bytes() const { return sampleCount() * scalarTypeSize(m_type); }
 

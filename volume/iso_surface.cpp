@@ -47,23 +47,47 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
     : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec),
       m_active(bricks.activeBricks(float(iso))), m_isActive(bricks.size(), false) {
   for (uint32_t b : m_active) m_isActive[b] = true;
+  // The uniform cells of every active brick. A corner counts as strictly above (below) only if
+  // it is in float and in double, so the table holds for the float and the double traversal.
+  const float isoF = float(iso);
+  m_cellClasses.resize(m_active.size());
+  for (size_t i = 0; i < m_active.size(); ++i) {
+    const Vec3i c0 = bricks.cellBegin(m_active[i]), c1 = bricks.cellEnd(m_active[i]);
+    CellClasses& classes = m_cellClasses[i];
+    for (int z = c0.z; z < c1.z; ++z)
+      for (int y = c0.y; y < c1.y; ++y)
+        for (int x = c0.x; x < c1.x; ++x) {
+          float v[8];
+          grid.cellCorners(x, y, z, v);
+          bool above = true, below = true;
+          for (float f : v) {
+            above = above && f > isoF && double(f) > iso;
+            below = below && f < isoF && double(f) < iso;
+          }
+          const uint64_t bit = uint64_t(1) << ((y - c0.y) * 8 + (x - c0.x));
+          if (above) classes.positive[z - c0.z] |= bit;
+          if (below) classes.negative[z - c0.z] |= bit;
+        }
+  }
 }
 
 template <bool AnyHit>
-bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear,
-                       double tfar, SurfaceHit* hit, TraversalStats& stats, StartClass start) const {
+bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, const Vec3d& org, const Vec3d& dir,
+                       double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
+                       StartClass start) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
-  // float otherwise, and converts the hit to world space.
+  // float otherwise, on the grid's own sample type, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
+    return withCellAccess(m_grid, classes, lo, [&](const auto& cells) {
     const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
     CellHit<Real> cellHit;
-    if (!traverseCells<AnyHit>(m_grid, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
+    if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
                                cellHit, stats, start))
       return false;
     if constexpr (!AnyHit) {
       Real g[8];
-      loadCell(m_grid, cellHit.cell, Real(m_iso), g);
+      cells.load(cellHit.cell, Real(m_iso), g);
       const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
       const double len = length(grad);
       // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
@@ -76,6 +100,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, d
       hit->insideAfter = cellHit.insideAfter;
     }
     return true;
+    });
   };
   switch (m_spec.kind) {
     case IntersectorKind::Linear: return run(0.f, LinearIntersector{});
@@ -87,17 +112,19 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, d
   return false;
 }
 
-bool IsoSurface::intersectBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
+bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                 double tfar, SurfaceHit& hit, TraversalStats& stats,
                                 StartClass start) const {
-  return query<false>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, &hit,
-                      stats, start);
+  const uint32_t b = m_active[primitive];
+  return query<false>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), &m_cellClasses[primitive], org, dir,
+                      tnear, tfar, &hit, stats, start);
 }
 
-bool IsoSurface::occludedBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, double tnear,
+bool IsoSurface::occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                double tfar, TraversalStats& stats, StartClass start) const {
-  return query<true>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), org, dir, tnear, tfar, nullptr,
-                     stats, start);
+  const uint32_t b = m_active[primitive];
+  return query<true>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), &m_cellClasses[primitive], org, dir,
+                     tnear, tfar, nullptr, stats, start);
 }
 
 // Without Embree: one DDA over the whole grid. Cells are skipped by their corners alone, so
@@ -105,13 +132,13 @@ bool IsoSurface::occludedBrick(uint32_t b, const Vec3d& org, const Vec3d& dir, d
 bool IsoSurface::intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                            SurfaceHit& hit, TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, &hit, stats, start);
+  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, org, dir, tnear, tfar, &hit, stats, start);
 }
 
 bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                           TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, org, dir, tnear, tfar, nullptr, stats, start);
+  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, org, dir, tnear, tfar, nullptr, stats, start);
 }
 
 bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, double tnear,
@@ -135,8 +162,8 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
   const bool inGrid = m_spec.kind == IntersectorKind::Reference ? startCell(0.0, cell) : startCell(0.f, cell);
   if (!inGrid || m_isActive[m_bricks.brickOf(cell)]) return false;
   const Vec3i next{cell.x + 1, cell.y + 1, cell.z + 1};
-  return hit ? query<false>(cell, next, org, dir, tnear, tfar, hit, stats, start)
-             : query<true>(cell, next, org, dir, tnear, tfar, nullptr, stats, start);
+  return hit ? query<false>(cell, next, nullptr, org, dir, tnear, tfar, hit, stats, start)
+             : query<true>(cell, next, nullptr, org, dir, tnear, tfar, nullptr, stats, start);
 }
 
 void IsoSurface::setWorldToObject(const Transform& t) {
@@ -195,7 +222,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray.org_x, ray.org_y, ray.org_z};
   const Vec3d dir{ray.dir_x, ray.dir_y, ray.dir_z};
   const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
-  if (!surface->intersectBrick(surface->activeBricks()[args->primID], org, dir, ray.tnear,
+  if (!surface->intersectBrick(args->primID, org, dir, ray.tnear,
                                ray.tfar, hit, context->stats, start))
     return;
   const float t = float(hit.t);
@@ -221,7 +248,7 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray->org_x, ray->org_y, ray->org_z};
   const Vec3d dir{ray->dir_x, ray->dir_y, ray->dir_z};
   const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
-  if (surface->occludedBrick(surface->activeBricks()[args->primID], org, dir, ray->tnear,
+  if (surface->occludedBrick(args->primID, org, dir, ray->tnear,
                              ray->tfar, context->stats, start))
     ray->tfar = -INFINITY;
 }

@@ -58,11 +58,11 @@ class IsoSurface {
                  TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   bool occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                 TraversalStats& stats, StartClass start = StartClass::Unknown) const;
-  // The same on one brick, as Embree calls it.
-  bool intersectBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
+  // The same on one active brick, activeBricks()[primitive], as Embree calls it.
+  bool intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                       double tfar, SurfaceHit& hit, TraversalStats& stats,
                       StartClass start = StartClass::Unknown) const;
-  bool occludedBrick(uint32_t brick, const Vec3d& org, const Vec3d& dir, double tnear,
+  bool occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                      double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   // With bricks, a ray that starts in an inactive brick has its first cell seen by no brick
   // query (inactive bricks are no Embree primitives). When its start class is given and that
@@ -87,7 +87,7 @@ class IsoSurface {
 
  private:
   template <bool AnyHit>
-  bool query(Vec3i lo, Vec3i hi, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+  bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
              SurfaceHit* hit, TraversalStats& stats, StartClass start) const;
 
   const Grid& m_grid;
@@ -96,6 +96,7 @@ class IsoSurface {
   IntersectorSpec m_spec;
   std::vector<uint32_t> m_active;
   std::vector<bool> m_isActive;  // per brick
+  std::vector<CellClasses> m_cellClasses;  // per active brick: which cells are uniform
   Transform m_worldToObject;
   bool m_instanced = false;
   double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances

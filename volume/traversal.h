@@ -63,6 +63,66 @@ struct CellHit {
 // along one ray: the number of hits has the parity of the classes at the chain's two ends.
 enum class StartClass : signed char { Unknown = 0, Outside = -1, Inside = 1 };
 
+// The class of every cell of one brick (BrickGrid::kCells^3 cells): bit (y * 8 + x) of word z
+// of `positive` / `negative` is set when all 8 corners of cell (x, y, z) of the brick lie
+// strictly above / below the iso value, in float and in double alike. The traversal steps over
+// such a cell on two bit tests, without loading its corners; every other cell takes the full
+// path, so the answers are the same bits as without the table.
+struct CellClasses {
+  uint64_t positive[8] = {};
+  uint64_t negative[8] = {};
+};
+
+// A grid's cells read in its own sample type (a template parameter, so that the fetch of the
+// 8 corners is inlined into the traversal, without a switch per cell), plus the class table
+// of the brick being traversed, if any.
+template <typename Sample>
+struct CellAccess {
+  const Sample* data = nullptr;
+  Vec3i dims;
+  size_t sy = 0, sz = 0;                 // strides of y and z, in samples
+  const CellClasses* classes = nullptr;  // of the brick whose first cell is `classOrigin`
+  Vec3i classOrigin;
+
+  CellAccess(const Grid& grid, const CellClasses* brickClasses = nullptr, Vec3i brickOrigin = {})
+      : data(static_cast<const Sample*>(grid.data())), dims(grid.dims()), sy(size_t(dims.x)),
+        sz(size_t(dims.x) * size_t(dims.y)), classes(brickClasses), classOrigin(brickOrigin) {}
+
+  // Corner c = bit0 x, bit1 y, bit2 z; values minus the iso value. Every sample type converts
+  // to float exactly, and float to double, so all precisions see the same corner values.
+  template <typename Real>
+  void load(const Vec3i& c, Real iso, Real g[8]) const {
+    const Sample* p = data + (size_t(c.z) * size_t(dims.y) + size_t(c.y)) * sy + size_t(c.x);
+    g[0] = Real(float(p[0])) - iso;
+    g[1] = Real(float(p[1])) - iso;
+    g[2] = Real(float(p[sy])) - iso;
+    g[3] = Real(float(p[sy + 1])) - iso;
+    g[4] = Real(float(p[sz])) - iso;
+    g[5] = Real(float(p[sz + 1])) - iso;
+    g[6] = Real(float(p[sz + sy])) - iso;
+    g[7] = Real(float(p[sz + sy + 1])) - iso;
+  }
+  // +1: all corners strictly inside, -1: all strictly outside, 0: unknown (load them).
+  int uniformClass(const Vec3i& c) const {
+    if (!classes) return 0;
+    const int x = c.x - classOrigin.x, y = c.y - classOrigin.y, z = c.z - classOrigin.z;
+    const uint64_t bit = uint64_t(1) << (y * 8 + x);
+    return (classes->positive[z] & bit) ? 1 : (classes->negative[z] & bit) ? -1 : 0;
+  }
+};
+
+// Calls f(CellAccess<Sample>(...)) for the grid's sample type: the one switch per query.
+template <typename F>
+inline decltype(auto) withCellAccess(const Grid& grid, const CellClasses* classes, Vec3i origin, F&& f) {
+  switch (grid.type()) {
+    case ScalarType::UInt8: return f(CellAccess<uint8_t>(grid, classes, origin));
+    case ScalarType::UInt16: return f(CellAccess<uint16_t>(grid, classes, origin));
+    case ScalarType::Int16: return f(CellAccess<int16_t>(grid, classes, origin));
+    case ScalarType::Float32: break;
+  }
+  return f(CellAccess<float>(grid, classes, origin));
+}
+
 template <typename Real>
 inline void loadCell(const Grid& grid, const Vec3i& c, Real iso, Real g[8]) {
   float v[8];
@@ -82,8 +142,8 @@ inline Real approachSide(const Cubic<Real>& c, Real flat) {
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 // `start` applies where the query starts at tnear inside the box (not at a face of it).
-template <bool AnyHit, typename Real, typename Intersector>
-bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
+template <bool AnyHit, typename Real, typename Intersector, typename Sample>
+bool traverseCells(const CellAccess<Sample>& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
                    TraversalStats& stats, StartClass start = StartClass::Unknown) {
   if (!ray.valid() || !(tnear <= tfar)) return false;
@@ -174,11 +234,11 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
   auto classBehindEntry = [&](const Real g[8]) {
     Vec3i prev = cell;
     prev[entryAxis] -= step[entryAxis];
-    if (prev[entryAxis] < 0 || prev[entryAxis] > grid.dims()[entryAxis] - 2) return carried;
+    if (prev[entryAxis] < 0 || prev[entryAxis] > cells.dims[entryAxis] - 2) return carried;
     const Vec3<Real> a = localAt(t0, entryAxis, faceValue(entryAxis, true));
     if (trilinear(g, a) != Real(0)) return carried;
     CellSegment<Real> behind;
-    loadCell(grid, prev, iso, behind.g);
+    cells.load(prev, iso, behind.g);
     behind.b = a;
     behind.b[entryAxis] = Real(1) - a[entryAxis];
     behind.a = behind.b - ray.dir;
@@ -195,11 +255,15 @@ bool traverseCells(const Grid& grid, Real iso, const GridRay<Real>& ray, Vec3i l
     const int leaveAxis = throughFace ? m : -1;
 
     CellSegment<Real> seg;
-    loadCell(grid, cell, iso, seg.g);
     int positive = 0, negative = 0;
-    for (int i = 0; i < 8; ++i) {
-      positive += seg.g[i] > Real(0);
-      negative += seg.g[i] < Real(0);
+    if (const int uniform = cells.uniformClass(cell)) {
+      (uniform > 0 ? positive : negative) = 8;
+    } else {
+      cells.load(cell, iso, seg.g);
+      for (int i = 0; i < 8; ++i) {
+        positive += seg.g[i] > Real(0);
+        negative += seg.g[i] < Real(0);
+      }
     }
     // Cells that cannot change the class are stepped over: one strict sign, or zeros with
     // values only on the side the ray is already on.
