@@ -292,8 +292,8 @@ int info(const std::string& path) {
                 vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
     for (const SurfaceInfo& si : world.surfaces())
       if (si.volume == int(v))
-        std::printf("    iso-surface %g: %zu of %zu bricks active, material %s%s\n", si.iso,
-                    si.surface->activeBricks().size(), si.surface->totalBricks(),
+        std::printf("    iso-surface %g: %zu of %zu bricks active (%.1f MiB of tight boxes and cell classes), material %s%s\n", si.iso,
+                    si.surface->activeBricks().size(), si.surface->totalBricks(), si.surface->bytes() / 1048576.0,
                     world.materials()[si.material].name.c_str(),
                     si.surface->activeBricks().empty() ? " (empty: not built)" : "");
   }

@@ -45,15 +45,20 @@ GridRay<Real> queryRay(const Grid& grid, const Vec3d& org, const Vec3d& dir, dou
 
 IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec)
     : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec),
-      m_active(bricks.activeBricks(float(iso))), m_isActive(bricks.size(), false) {
-  for (uint32_t b : m_active) m_isActive[b] = true;
+      m_active(bricks.activeBricks(float(iso))), m_primitiveOf(bricks.size(), -1) {
   // The uniform cells of every active brick. A corner counts as strictly above (below) only if
   // it is in float and in double, so the table holds for the float and the double traversal.
+  // The other cells span the brick's tight box: outside it every cell is of one strict class,
+  // so a traversal of the box alone finds the same crossings (it enters the box through a face
+  // whose class it evaluates, or takes from the cell behind where that face is exactly on the
+  // surface, as at a brick seam), and Embree culls rays that only cross the uniform part.
   const float isoF = float(iso);
+  m_primitives.resize(m_active.size());
   m_cellClasses.resize(m_active.size());
   for (size_t i = 0; i < m_active.size(); ++i) {
     const Vec3i c0 = bricks.cellBegin(m_active[i]), c1 = bricks.cellEnd(m_active[i]);
     CellClasses& classes = m_cellClasses[i];
+    Vec3i lo = c1, hi = c0;
     for (int z = c0.z; z < c1.z; ++z)
       for (int y = c0.y; y < c1.y; ++y)
         for (int x = c0.x; x < c1.x; ++x) {
@@ -67,19 +72,26 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
           const uint64_t bit = uint64_t(1) << ((y - c0.y) * 8 + (x - c0.x));
           if (above) classes.positive[z - c0.z] |= bit;
           if (below) classes.negative[z - c0.z] |= bit;
+          if (!above && !below) {
+            lo = min(lo, Vec3i{x, y, z});
+            hi = max(hi, Vec3i{x + 1, y + 1, z + 1});
+          }
         }
+    if (!(lo.x < hi.x)) lo = c0, hi = c1;  // cannot happen for an active brick; stay safe
+    m_primitives[i] = {lo, hi, c0};
+    m_primitiveOf[m_active[i]] = int32_t(i);
   }
 }
 
 template <bool AnyHit>
-bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, const Vec3d& org, const Vec3d& dir,
+bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir,
                        double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
                        StartClass start) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, on the grid's own sample type, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
-    return withCellAccess(m_grid, classes, lo, [&](const auto& cells) {
+    return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
     const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
     CellHit<Real> cellHit;
     if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
@@ -115,15 +127,15 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, const Vec
 bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                 double tfar, SurfaceHit& hit, TraversalStats& stats,
                                 StartClass start) const {
-  const uint32_t b = m_active[primitive];
-  return query<false>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), &m_cellClasses[primitive], org, dir,
+  const Primitive& p = m_primitives[primitive];
+  return query<false>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, org, dir,
                       tnear, tfar, &hit, stats, start);
 }
 
 bool IsoSurface::occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                double tfar, TraversalStats& stats, StartClass start) const {
-  const uint32_t b = m_active[primitive];
-  return query<true>(m_bricks.cellBegin(b), m_bricks.cellEnd(b), &m_cellClasses[primitive], org, dir,
+  const Primitive& p = m_primitives[primitive];
+  return query<true>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, org, dir,
                      tnear, tfar, nullptr, stats, start);
 }
 
@@ -132,13 +144,13 @@ bool IsoSurface::occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d
 bool IsoSurface::intersect(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                            SurfaceHit& hit, TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, org, dir, tnear, tfar, &hit, stats, start);
+  return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, {}, org, dir, tnear, tfar, &hit, stats, start);
 }
 
 bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                           TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
-  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, org, dir, tnear, tfar, nullptr, stats, start);
+  return query<true>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, {}, org, dir, tnear, tfar, nullptr, stats, start);
 }
 
 bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, double tnear,
@@ -160,10 +172,18 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
   };
   Vec3i cell;
   const bool inGrid = m_spec.kind == IntersectorKind::Reference ? startCell(0.0, cell) : startCell(0.f, cell);
-  if (!inGrid || m_isActive[m_bricks.brickOf(cell)]) return false;
+  // Covered when the cell lies in the tight box of an active brick (Embree calls that
+  // primitive for a ray starting inside its box); every other cell is seen by no query.
+  if (!inGrid) return false;
+  const int32_t primitive = m_primitiveOf[m_bricks.brickOf(cell)];
+  if (primitive >= 0) {
+    const Primitive& p = m_primitives[primitive];
+    if (cell.x >= p.lo.x && cell.y >= p.lo.y && cell.z >= p.lo.z && cell.x < p.hi.x && cell.y < p.hi.y && cell.z < p.hi.z)
+      return false;
+  }
   const Vec3i next{cell.x + 1, cell.y + 1, cell.z + 1};
-  return hit ? query<false>(cell, next, nullptr, org, dir, tnear, tfar, hit, stats, start)
-             : query<true>(cell, next, nullptr, org, dir, tnear, tfar, nullptr, stats, start);
+  return hit ? query<false>(cell, next, nullptr, {}, org, dir, tnear, tfar, hit, stats, start)
+             : query<true>(cell, next, nullptr, {}, org, dir, tnear, tfar, nullptr, stats, start);
 }
 
 void IsoSurface::setWorldToObject(const Transform& t) {
@@ -189,8 +209,8 @@ void IsoSurface::setWorldToObject(const Transform& t) {
   m_boundsPad = 16 * 0x1p-24 * worldScale * std::max({rows.x, rows.y, rows.z});
 }
 
-void IsoSurface::brickBounds(uint32_t b, float lower[3], float upper[3]) const {
-  const Vec3i c0 = m_bricks.cellBegin(b), c1 = m_bricks.cellEnd(b);
+void IsoSurface::primitiveBounds(uint32_t primitive, float lower[3], float upper[3]) const {
+  const Vec3i c0 = m_primitives[primitive].lo, c1 = m_primitives[primitive].hi;
   const Vec3d o = m_grid.origin(), s = m_grid.spacing();
   for (int a = 0; a < 3; ++a) {
     const double lo = o[a] + c0[a] * s[a], hi = o[a] + c1[a] * s[a];
@@ -206,7 +226,7 @@ namespace {
 void boundsCallback(const RTCBoundsFunctionArguments* args) {
   const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
   float lo[3], hi[3];
-  surface->brickBounds(surface->activeBricks()[args->primID], lo, hi);
+  surface->primitiveBounds(args->primID, lo, hi);
   args->bounds_o->lower_x = lo[0]; args->bounds_o->lower_y = lo[1]; args->bounds_o->lower_z = lo[2];
   args->bounds_o->upper_x = hi[0]; args->bounds_o->upper_y = hi[1]; args->bounds_o->upper_z = hi[2];
 }

@@ -82,21 +82,33 @@ class IsoSurface {
 
   // A user geometry (one primitive per active brick) attached to nothing; the caller owns it.
   RTCGeometry createGeometry(RTCDevice device) const;
-  // World-space bounds of brick `b`, rounded outwards.
-  void brickBounds(uint32_t b, float lower[3], float upper[3]) const;
+  // World-space bounds of primitive `primitive` (the tight box of activeBricks()[primitive]),
+  // rounded outwards.
+  void primitiveBounds(uint32_t primitive, float lower[3], float upper[3]) const;
+  // Memory of the primitives' records and class tables (Embree's BVH comes on top).
+  size_t bytes() const {
+    return m_primitives.size() * (sizeof(Primitive) + sizeof(CellClasses)) + m_primitiveOf.size() * sizeof(int32_t);
+  }
 
  private:
   template <bool AnyHit>
-  bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+  bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
              SurfaceHit* hit, TraversalStats& stats, StartClass start) const;
 
   const Grid& m_grid;
   const BrickGrid& m_bricks;
   double m_iso;
   IntersectorSpec m_spec;
+  // Per active brick: the box of its cells that are not uniform (the only cells that can hold
+  // or touch the surface), its first cell, and which of its cells are uniform.
+  struct Primitive {
+    Vec3i lo, hi;  // tight box: cells [lo, hi)
+    Vec3i brickOrigin;
+  };
   std::vector<uint32_t> m_active;
-  std::vector<bool> m_isActive;  // per brick
-  std::vector<CellClasses> m_cellClasses;  // per active brick: which cells are uniform
+  std::vector<int32_t> m_primitiveOf;  // per brick: index into m_primitives, or -1
+  std::vector<Primitive> m_primitives;
+  std::vector<CellClasses> m_cellClasses;
   Transform m_worldToObject;
   bool m_instanced = false;
   double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances
