@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 
 namespace iso {
 namespace {
@@ -86,13 +87,23 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
 template <bool AnyHit>
 bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir,
                        double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
-                       StartClass start) const {
+                       StartClass start, GridRayCache* cache) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, on the grid's own sample type, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
-    const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
+    GridRay<Real> ray;
+    if constexpr (std::is_same_v<Real, float>) {
+      if (cache && cache->surface == this) {
+        ray = cache->ray;
+      } else {
+        ray = queryRay<Real>(m_grid, org, dir, tnear, start);
+        if (cache) *cache = {this, ray};
+      }
+    } else {
+      ray = queryRay<Real>(m_grid, org, dir, tnear, start);
+    }
     CellHit<Real> cellHit;
     if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
                                cellHit, stats, start))
@@ -126,17 +137,18 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
 
 bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                 double tfar, SurfaceHit& hit, TraversalStats& stats,
-                                StartClass start) const {
+                                StartClass start, GridRayCache* cache) const {
   const Primitive& p = m_primitives[primitive];
   return query<false>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, org, dir,
-                      tnear, tfar, &hit, stats, start);
+                      tnear, tfar, &hit, stats, start, cache);
 }
 
 bool IsoSurface::occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
-                               double tfar, TraversalStats& stats, StartClass start) const {
+                               double tfar, TraversalStats& stats, StartClass start,
+                               GridRayCache* cache) const {
   const Primitive& p = m_primitives[primitive];
   return query<true>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, org, dir,
-                     tnear, tfar, nullptr, stats, start);
+                     tnear, tfar, nullptr, stats, start, cache);
 }
 
 // Without Embree: one DDA over the whole grid. Cells are skipped by their corners alone, so
@@ -243,7 +255,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   const Vec3d dir{ray.dir_x, ray.dir_y, ray.dir_z};
   const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
   if (!surface->intersectBrick(args->primID, org, dir, ray.tnear,
-                               ray.tfar, hit, context->stats, start))
+                               ray.tfar, hit, context->stats, start, &context->gridRay))
     return;
   const float t = float(hit.t);
   if (!(t >= ray.tnear && t <= ray.tfar)) return;
@@ -269,7 +281,7 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   const Vec3d dir{ray->dir_x, ray->dir_y, ray->dir_z};
   const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
   if (surface->occludedBrick(args->primID, org, dir, ray->tnear,
-                             ray->tfar, context->stats, start))
+                             ray->tfar, context->stats, start, &context->gridRay))
     ray->tfar = -INFINITY;
 }
 

@@ -29,6 +29,13 @@ struct SurfaceHit {
 // `startSurface` and `start`: a ray spawned from a hit on that surface starts in the class
 // `start` there (see StartClass in volume/traversal.h).
 class IsoSurface;
+// The ray of one Embree query in a surface's grid coordinates: the same for every brick of that
+// surface the query visits (its origin, direction, tnear and start class do not change), so it
+// is computed once per ray instead of once per brick.
+struct GridRayCache {
+  const IsoSurface* surface = nullptr;
+  GridRay<float> ray;
+};
 struct IsoRayContext {
   RTCIntersectContext embree;
   const Vec3d* origin = nullptr;
@@ -38,6 +45,7 @@ struct IsoRayContext {
   float tError = 0;
   bool insideAfter = false;
   TraversalStats stats;
+  GridRayCache gridRay;
   IsoRayContext() { rtcInitIntersectContext(&embree); }
 };
 
@@ -59,11 +67,13 @@ class IsoSurface {
   bool occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
                 TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   // The same on one active brick, activeBricks()[primitive], as Embree calls it.
+  // `cache`, if given, holds the float grid ray of the same query across bricks.
   bool intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                       double tfar, SurfaceHit& hit, TraversalStats& stats,
-                      StartClass start = StartClass::Unknown) const;
+                      StartClass start = StartClass::Unknown, GridRayCache* cache = nullptr) const;
   bool occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
-                     double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown) const;
+                     double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown,
+                     GridRayCache* cache = nullptr) const;
   // With bricks, a ray that starts in an inactive brick has its first cell seen by no brick
   // query (inactive bricks are no Embree primitives). When its start class is given and that
   // brick lies strictly on the other side, the crossing is at the start: true, and `hit` (if
@@ -93,7 +103,7 @@ class IsoSurface {
  private:
   template <bool AnyHit>
   bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-             SurfaceHit* hit, TraversalStats& stats, StartClass start) const;
+             SurfaceHit* hit, TraversalStats& stats, StartClass start, GridRayCache* cache = nullptr) const;
 
   const Grid& m_grid;
   const BrickGrid& m_bricks;
