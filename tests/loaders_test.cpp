@@ -198,6 +198,31 @@ TEST_F(SyntheticFiles, BadInputIsNamed) {
   expectInputError(dir + "/nan_4x3x2_float32.raw", "voxel (1, 1, 0): NaN value");
 }
 
+// Raw files are read straight into the grid's buffer: the layout is checked against the file
+// before anything is allocated, and gzip output is checked against it while inflating.
+TEST_F(SyntheticFiles, RawStraightIntoTheGrid) {
+  test::writeBytes(dir + "/v_4x3x2_int16.raw", le);
+  expectValues(loadVolumeFile(dir + "/v_4x3x2_int16.raw", {}));
+  RawLayout big;
+  big.bigEndian = true;
+  test::writeBytes(dir + "/b_4x3x2_int16.raw", be);
+  expectValues(loadVolumeFile(dir + "/b_4x3x2_int16.raw", big));
+  test::writeBytes(dir + "/z_4x3x2_int16.raw.gz", gzip(le));
+  expectValues(loadVolumeFile(dir + "/z_4x3x2_int16.raw.gz", {}));
+  // A stream that inflates to more than the layout holds stops at the first extra byte.
+  test::writeBytes(dir + "/bomb_4x3x2_int16.raw.gz", gzip(std::string(1 << 20, '\0')));
+  expectInputError(dir + "/bomb_4x3x2_int16.raw.gz", "decompressed data is larger than 4x3x2 int16 (48 bytes)");
+  test::writeBytes(dir + "/small_4x3x2_int16.raw.gz", gzip(le.substr(0, 20)));
+  expectInputError(dir + "/small_4x3x2_int16.raw.gz", "data has 20 bytes but 4x3x2 int16 needs 48");
+  test::writeBytes(dir + "/long_4x3x2_int16.raw", le + "xx");
+  expectInputError(dir + "/long_4x3x2_int16.raw", "data has 50 bytes but 4x3x2 int16 needs 48");
+  // Dimensions whose product does not fit are refused before any allocation.
+  test::writeBytes(dir + "/huge_2147483647x2147483647x2147483647_float32.raw", le);
+  expectInputError(dir + "/huge_2147483647x2147483647x2147483647_float32.raw", "are too large");
+  test::writeBytes(dir + "/large_65536x65536x65536_uint8.raw", le);
+  expectInputError(dir + "/large_65536x65536x65536_uint8.raw", "data has 48 bytes but 65536x65536x65536 uint8 needs");
+}
+
 TEST(Loaders, TruncatedRealGzipIsAnError) {
   const std::string dir = test::scratchDir();
   std::ifstream in(dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz"), std::ios::binary);

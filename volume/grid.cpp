@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 
 #include <limits>
 
@@ -37,10 +38,33 @@ bool parseScalarType(const std::string& name, ScalarType& type) {
 }
 
 Grid::Grid(Vec3i dims, Storage samples, Vec3d origin, Vec3d spacing)
-    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_samples(std::move(samples)) {
-  m_type = static_cast<ScalarType>(m_samples.index());
-  std::visit([this](const auto& v) { m_data = v.data(); }, m_samples);
+    : m_dims(dims), m_origin(origin), m_spacing(spacing) {
+  m_type = static_cast<ScalarType>(samples.index());
+  std::visit([this](auto& v) {
+    auto owned = std::make_shared<std::decay_t<decltype(v)>>(std::move(v));
+    m_data = owned->data();
+    m_samples = std::move(owned);
+  }, samples);
 }
+
+Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3d origin, Vec3d spacing)
+    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(type), m_samples(std::move(samples)),
+      m_data(m_samples.get()) {}
+
+namespace {
+
+// Calls f(pointer, count) with the samples in their own type.
+template <typename F>
+void visitSamples(ScalarType type, const void* data, size_t n, F&& f) {
+  switch (type) {
+    case ScalarType::UInt8: f(static_cast<const uint8_t*>(data), n); break;
+    case ScalarType::UInt16: f(static_cast<const uint16_t*>(data), n); break;
+    case ScalarType::Int16: f(static_cast<const int16_t*>(data), n); break;
+    case ScalarType::Float32: f(static_cast<const float*>(data), n); break;
+  }
+}
+
+}  // namespace
 
 void Grid::cellCorners(int x, int y, int z, float out[8]) const {
   const size_t sx = 1, sy = size_t(m_dims.x), sz = size_t(m_dims.x) * m_dims.y;
@@ -59,16 +83,18 @@ void Grid::cellCorners(int x, int y, int z, float out[8]) const {
 
 double Grid::sum() const {
   double s = 0;
-  std::visit([&](const auto& v) { for (auto x : v) s += double(x); }, m_samples);
+  visitSamples(m_type, m_data, sampleCount(), [&](const auto* v, size_t n) {
+    for (size_t i = 0; i < n; ++i) s += double(v[i]);
+  });
   return s;
 }
 
 void Grid::range(float& lo, float& hi) const {
   lo = std::numeric_limits<float>::infinity();
   hi = -lo;
-  std::visit([&](const auto& v) {
-    for (auto x : v) { lo = std::min(lo, float(x)); hi = std::max(hi, float(x)); }
-  }, m_samples);
+  visitSamples(m_type, m_data, sampleCount(), [&](const auto* v, size_t n) {
+    for (size_t i = 0; i < n; ++i) { lo = std::min(lo, float(v[i])); hi = std::max(hi, float(v[i])); }
+  });
 }
 
 double Grid::interpolate(const Vec3d& p) const {

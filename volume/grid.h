@@ -3,6 +3,7 @@
 // x fastest, with its placement in world space (origin of sample 0, spacing between samples).
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <variant>
 #include <vector>
@@ -25,6 +26,10 @@ class Grid {
 
   Grid() = default;
   Grid(Vec3i dims, Storage samples, Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+  // Samples of `type` in a buffer the grid shares ownership of (a loader reads a file straight
+  // into an uninitialised buffer: no zero-filling pass, no second copy).
+  Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3d origin = {0, 0, 0},
+       Vec3d spacing = {1, 1, 1});
 
   Vec3i dims() const { return m_dims; }
   Vec3d origin() const { return m_origin; }
@@ -68,7 +73,7 @@ class Grid {
   Vec3d m_origin{0, 0, 0};
   Vec3d m_spacing{1, 1, 1};
   ScalarType m_type = ScalarType::UInt8;
-  Storage m_samples;
+  std::shared_ptr<const void> m_samples;
   const void* m_data = nullptr;
 };
 

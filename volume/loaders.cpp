@@ -1,15 +1,19 @@
 #include "volume/loaders.h"
 
+#include <sys/mman.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <regex>
 #include <sstream>
+#include <type_traits>
+#include <variant>
 
 #include "volume/input_error.h"
 
@@ -41,8 +45,11 @@ Bytes readFile(const std::string& path) {
   if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, "", "cannot open file");
-  Bytes data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) throw InputError(path, "", "read error");
+  const auto size = fs::file_size(path, ec);
+  if (ec) throw InputError(path, "", "cannot read the file size");
+  Bytes data(size);
+  in.read(reinterpret_cast<char*>(data.data()), std::streamsize(size));
+  if (in.bad() || size_t(in.gcount()) != size) throw InputError(path, "", "read error");
   return data;
 }
 
@@ -82,8 +89,6 @@ Bytes inflateBytes(const Bytes& in, const std::string& file) {
   return out;
 }
 
-bool isGzip(const Bytes& b) { return b.size() >= 2 && b[0] == 0x1f && b[1] == 0x8b; }
-
 void checkDims(const Vec3i& d, const std::string& file, const std::string& where) {
   if (d.x <= 0 || d.y <= 0 || d.z <= 0)
     throw InputError(file, where, "dimensions must be positive, got " + std::to_string(d.x) +
@@ -97,49 +102,121 @@ void checkSpacing(const Vec3d& s, const std::string& file, const std::string& wh
     throw InputError(file, where, "spacing must be positive and finite");
 }
 
+std::string sizeMismatch(const Vec3i& dims, ScalarType type, size_t have, size_t expected) {
+  return "data has " + std::to_string(have) + " bytes but " + std::to_string(dims.x) + "x" +
+         std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " + scalarTypeName(type) + " needs " +
+         std::to_string(expected);
+}
+
+// Samples and bytes of a grid, or an error if the product does not fit in memory sizes.
+size_t checkedBytes(const Vec3i& dims, ScalarType type, const std::string& file, size_t& count) {
+  const unsigned __int128 n = (unsigned __int128)(uint64_t(dims.x)) * uint64_t(dims.y) * uint64_t(dims.z);
+  const unsigned __int128 bytes = n * scalarTypeSize(type);
+  if (bytes > (unsigned __int128)(SIZE_MAX / 2))
+    throw InputError(file, "", "dimensions " + std::to_string(dims.x) + "x" + std::to_string(dims.y) + "x" +
+                                   std::to_string(dims.z) + " are too large");
+  count = size_t(n);
+  return size_t(bytes);
+}
+
+// An uninitialised buffer for `bytes` bytes of samples: the reader fills it, and the grid takes
+// ownership. Large buffers are aligned to 2 MiB and asked for transparent huge pages: reading
+// 512 MiB into 4 KiB pages spends most of its time in page faults.
+std::shared_ptr<uint8_t[]> allocateSamples(size_t bytes) {
+  constexpr size_t kHuge = size_t(2) << 20;
+  if (bytes < kHuge) return std::shared_ptr<uint8_t[]>(new uint8_t[std::max<size_t>(bytes, 1)]);
+  const size_t rounded = (bytes + kHuge - 1) / kHuge * kHuge;
+  void* p = std::aligned_alloc(kHuge, rounded);
+  if (!p) throw std::bad_alloc();
+  madvise(p, rounded, MADV_HUGEPAGE);  // a hint: without THP it changes nothing
+  return std::shared_ptr<uint8_t[]>(static_cast<uint8_t*>(p), [](uint8_t* q) { std::free(q); });
+}
+
+// In place, once the bytes are in the buffer: native byte order, and no NaN or Inf in float
+// data (the error names the first such voxel).
+void finishSamples(uint8_t* data, ScalarType type, const Vec3i& dims, bool bigEndian, const std::string& file) {
+  const size_t n = size_t(dims.x) * dims.y * dims.z;
+  const size_t size = scalarTypeSize(type);
+  if (bigEndian && size > 1)
+    for (size_t i = 0; i < n; ++i) std::reverse(data + i * size, data + (i + 1) * size);
+  if (type != ScalarType::Float32) return;
+  const float* v = reinterpret_cast<const float*>(data);
+  // Exponent bits all set is NaN or Inf. Blocks are OR-reduced without a branch (the compiler
+  // vectorises that); only a block with a hit is searched.
+  size_t first = n;
+  for (size_t b = 0; b < n && first == n; b += 4096) {
+    const size_t e = std::min(n, b + 4096);
+    uint32_t bad = 0;
+    for (size_t i = b; i < e; ++i) {
+      uint32_t bits;
+      std::memcpy(&bits, &v[i], 4);
+      bad |= uint32_t((bits & 0x7f800000u) == 0x7f800000u);
+    }
+    if (bad) first = b;
+  }
+  for (size_t i = first; i < n; ++i) {
+    if (!std::isfinite(v[i])) {
+      const size_t x = i % dims.x, y = (i / dims.x) % dims.y, z = i / (size_t(dims.x) * dims.y);
+      throw InputError(file, "voxel (" + std::to_string(x) + ", " + std::to_string(y) + ", " + std::to_string(z) + ")",
+                       std::string(std::isnan(v[i]) ? "NaN" : "infinite") + " value in the data");
+    }
+  }
+}
+
 // Turns raw little/big-endian bytes into a typed grid; the size must match exactly.
 Grid makeGrid(const Vec3i& dims, ScalarType type, const Bytes& bytes, bool bigEndian,
               const std::string& file) {
-  const size_t count = size_t(dims.x) * dims.y * dims.z;
-  const size_t expected = count * scalarTypeSize(type);
-  if (bytes.size() != expected)
-    throw InputError(file, "", "data has " + std::to_string(bytes.size()) + " bytes but " +
-                                   std::to_string(dims.x) + "x" + std::to_string(dims.y) + "x" +
-                                   std::to_string(dims.z) + " " + scalarTypeName(type) +
-                                   " needs " + std::to_string(expected));
-  auto convert = [&](auto tag) {
-    using T = decltype(tag);
-    std::vector<T> v(count);
-    std::memcpy(v.data(), bytes.data(), expected);
-    if (bigEndian && sizeof(T) > 1) {
-      for (auto& x : v) {
-        uint8_t* p = reinterpret_cast<uint8_t*>(&x);
-        std::reverse(p, p + sizeof(T));
+  size_t count;
+  const size_t expected = checkedBytes(dims, type, file, count);
+  if (bytes.size() != expected) throw InputError(file, "", sizeMismatch(dims, type, bytes.size(), expected));
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
+  std::memcpy(samples.get(), bytes.data(), expected);
+  finishSamples(samples.get(), type, dims, bigEndian, file);
+  return Grid(dims, type, std::shared_ptr<const void>(samples, samples.get()));
+}
+
+// Inflates a gzip (or zlib) stream, concatenated members included, straight into `out`, which
+// must come out exactly `expected` bytes long: more output is an error as soon as it appears (a
+// small bomb is never inflated whole), less is an error at the end.
+void inflateInto(const Bytes& in, uint8_t* out, size_t expected, const Vec3i& dims, ScalarType type,
+                 const std::string& file) {
+  size_t consumed = 0, produced = 0;
+  while (consumed < in.size()) {
+    z_stream zs{};
+    if (inflateInit2(&zs, 32 + MAX_WBITS) != Z_OK) throw InputError(file, "", "zlib init failed");
+    zs.next_in = const_cast<Bytef*>(in.data() + consumed);
+    zs.avail_in = uInt(std::min<size_t>(in.size() - consumed, UINT32_MAX));
+    uint8_t spill[1];
+    int rc = Z_OK;
+    while (rc != Z_STREAM_END) {
+      const bool full = produced == expected;
+      zs.next_out = full ? spill : out + produced;
+      zs.avail_out = full ? 1 : uInt(std::min<size_t>(expected - produced, 1u << 30));
+      const uInt before = zs.avail_out;
+      rc = inflate(&zs, Z_NO_FLUSH);
+      const size_t made = before - zs.avail_out;
+      if (full && made > 0) {
+        inflateEnd(&zs);
+        throw InputError(file, "", "decompressed data is larger than " + std::to_string(dims.x) + "x" +
+                                       std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " +
+                                       scalarTypeName(type) + " (" + std::to_string(expected) + " bytes)");
+      }
+      produced += full ? 0 : made;
+      if (rc != Z_OK && rc != Z_STREAM_END) {
+        const std::string msg = rc == Z_BUF_ERROR ? "truncated compressed data" : "corrupt compressed data";
+        inflateEnd(&zs);
+        throw InputError(file, "byte " + std::to_string(consumed + zs.total_in), msg);
+      }
+      if (rc == Z_OK && zs.avail_in == 0 && zs.avail_out != 0) {
+        inflateEnd(&zs);
+        throw InputError(file, "byte " + std::to_string(in.size()), "truncated compressed data");
       }
     }
-    return v;
-  };
-  Grid::Storage storage;
-  switch (type) {
-    case ScalarType::UInt8: storage = convert(uint8_t{}); break;
-    case ScalarType::UInt16: storage = convert(uint16_t{}); break;
-    case ScalarType::Int16: storage = convert(int16_t{}); break;
-    case ScalarType::Float32: {
-      auto v = convert(float{});
-      for (size_t i = 0; i < v.size(); ++i) {
-        if (!std::isfinite(v[i])) {
-          const size_t x = i % dims.x, y = (i / dims.x) % dims.y, z = i / (size_t(dims.x) * dims.y);
-          throw InputError(file, "voxel (" + std::to_string(x) + ", " + std::to_string(y) + ", " +
-                                     std::to_string(z) + ")",
-                           std::string(std::isnan(v[i]) ? "NaN" : "infinite") +
-                               " value in the data");
-        }
-      }
-      storage = std::move(v);
-      break;
-    }
+    consumed += zs.total_in;
+    inflateEnd(&zs);
+    if (std::all_of(in.begin() + consumed, in.end(), [](uint8_t b) { return b == 0; })) break;
   }
-  return Grid(dims, std::move(storage));
+  if (produced != expected) throw InputError(file, "", sizeMismatch(dims, type, produced, expected));
 }
 
 // Parses whitespace-separated numbers (ASCII encodings) into the bytes of the scalar type.
@@ -566,8 +643,12 @@ Grid loadVtk(const std::string& path) {
   return g;
 }
 
+// Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
+// memory is the grid itself); gzip-compressed ones are inflated straight into it.
 Grid loadRaw(const std::string& path, const RawLayout& layout) {
-  Bytes data = readFile(path);
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
+  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
   Vec3i dims;
   ScalarType type;
   const bool named = parseSciVisName(path, dims, type);
@@ -578,8 +659,27 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   if (!layout.type && !named)
     throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
   checkDims(dims, path, "");
-  if (isGzip(data)) data = inflateBytes(data, path);
-  return makeGrid(dims, type, data, layout.bigEndian, path);
+  size_t count;
+  const size_t expected = checkedBytes(dims, type, path, count);
+  const size_t fileSize = fs::file_size(path, ec);
+  if (ec) throw InputError(path, "", "cannot read the file size");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path, "", "cannot open file");
+  char magic[2] = {0, 0};
+  in.read(magic, 2);
+  const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
+  if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
+  uint8_t* dst = samples.get();
+  if (gzip) {
+    inflateInto(readFile(path), dst, expected, dims, type, path);
+  } else {
+    in.seekg(0);
+    in.read(reinterpret_cast<char*>(dst), std::streamsize(expected));
+    if (in.bad() || size_t(in.gcount()) != expected) throw InputError(path, "", "read error");
+  }
+  finishSamples(dst, type, dims, layout.bigEndian, path);
+  return Grid(dims, type, std::shared_ptr<const void>(samples, dst));
 }
 
 }  // namespace
