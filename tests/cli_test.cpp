@@ -10,6 +10,7 @@
 #include <map>
 #include <sstream>
 
+#include "scene/gltf.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -124,7 +125,9 @@ TEST(Cli, WatertightAndBenchJson) {
   for (const auto& row : b.at("results")) {
     EXPECT_EQ(row.at("count"), 500);
     EXPECT_GT(row.at("ns_per_ray").get<double>(), 0);
-    if (row.at("intersector") == "reference") EXPECT_EQ(row.at("max_dt").get<double>(), 0);
+    if (row.at("intersector") == "reference") {
+      EXPECT_EQ(row.at("max_dt").get<double>(), 0);
+    }
   }
 
   for (const std::string& bad : {"watertight " + path + " --rays 0", "watertight " + path + " --intersector cubic",
@@ -294,6 +297,49 @@ TEST(Cli, SigintWritesTheFinishedSamplesAndExits130) {
   for (float v : data) ASSERT_TRUE(std::isfinite(v));
   for (const auto& entry : fs::directory_iterator(dir))
     EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+}
+
+
+// `isotrace mesh` writes a glTF the loader reads back, in world space (origin, spacing and the
+// transform applied), with the surface's material; bad flags and empty surfaces are bad input
+// and leave no file.
+TEST(Cli, MeshExportsTheSurfaceInWorldSpace) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/m.json";
+  test::writeText(path, R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]},
+      "transform": {"scale": 2, "translate": [10, 0, 0]},
+      "isosurfaces": [{"value": 0.5, "material": "gold", "inside": "below"}, {"value": 7}]}],
+    "materials": {"gold": {"type": "metallic_roughness", "color": [1, 0.8, 0.3], "metallic": 1, "roughness": 0.2}}})");
+  const std::string glb = dir + "/sphere.glb";
+  auto r = runIsotrace("mesh " + path + " -o " + glb);
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.out, glb + "\n");
+  const GltfModel model = loadGltf(glb);
+  ASSERT_EQ(model.meshes.size(), 1u);
+  const TriangleMesh& mesh = model.meshes[0][0];
+  EXPECT_GT(mesh.triangleCount(), 500u);
+  for (const Vec3f& p : mesh.positions)  // the sphere of radius 0.5, scaled by 2, centred at x = 10
+    EXPECT_NEAR(length(Vec3d(p) - Vec3d{10, 0, 0}), 1.0, 2 * 2.0 / 23) << p.x << " " << p.y << " " << p.z;
+  for (size_t i = 0; i < mesh.positions.size(); ++i)  // "inside": "below": normals point outwards
+    EXPECT_GT(dot(Vec3d(mesh.normals[i]), Vec3d(mesh.positions[i]) - Vec3d{10, 0, 0}), 0);
+  ASSERT_EQ(model.materials.size(), 1u);
+  EXPECT_FLOAT_EQ(model.materials[0].baseColor.y, 0.8f);
+  EXPECT_FLOAT_EQ(model.materials[0].metallic, 1.f);
+  EXPECT_FLOAT_EQ(model.materials[0].roughness, 0.2f);
+
+  auto bad = [&](const std::string& args, const std::string& fragment) {
+    const auto e = runIsotrace("mesh " + path + " " + args);
+    EXPECT_EQ(e.status, 2) << args << "\n" << e.err;
+    EXPECT_NE(e.err.find(fragment), std::string::npos) << e.err;
+    EXPECT_EQ(std::count(e.err.begin(), e.err.end(), '\n'), 1) << e.err;
+  };
+  bad("-o " + dir + "/a.glb --volume 1", "--volume: no volume 1 (the scene has 1, counted from 0)");
+  bad("-o " + dir + "/a.glb --surface 2", "--surface: no iso-surface 2 in /volumes/0 (it has 2");
+  bad("-o " + dir + "/a.glb --surface 1", "/volumes/0/isosurfaces/1/value: iso value 7 gives no surface");
+  bad("-o " + dir + "/a.obj", "the mesh output must be .glb or .gltf");
+  bad("-o " + dir + "/missing/a.glb", "output directory does not exist");
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_TRUE(entry.path().filename() == "m.json" || entry.path().filename() == "sphere.glb") << entry.path();
 }
 
 }  // namespace

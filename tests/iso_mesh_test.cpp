@@ -1,0 +1,118 @@
+// `isotrace mesh`'s extraction: the mesh is closed wherever the surface does not leave the
+// grid, every vertex lies within a cell of the exact surface, and the winding agrees with the
+// gradient. On a procedural sphere (exact answer known) and on real volumes.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
+#include <utility>
+
+#include "tests/test_util.h"
+#include "volume/iso_mesh.h"
+#include "volume/loaders.h"
+#include "volume/procedural.h"
+
+namespace iso {
+namespace {
+
+// Edges used by exactly one triangle (the mesh's boundary), as vertex index pairs.
+std::vector<std::pair<uint32_t, uint32_t>> openEdges(const IsoMesh& m) {
+  std::map<std::pair<uint32_t, uint32_t>, int> uses;
+  for (size_t t = 0; t < m.indices.size(); t += 3)
+    for (int e = 0; e < 3; ++e) {
+      const uint32_t a = m.indices[t + e], b = m.indices[t + (e + 1) % 3];
+      ++uses[{std::min(a, b), std::max(a, b)}];
+    }
+  std::vector<std::pair<uint32_t, uint32_t>> open;
+  for (const auto& [edge, n] : uses) {
+    EXPECT_LE(n, 2) << "an edge shared by " << n << " triangles";
+    if (n == 1) open.push_back(edge);
+  }
+  return open;
+}
+
+// True when the cell holding p, or one of its neighbours, has corners on both sides of iso or on
+// it (OpenVDB counts a value equal to iso as outside, the traversal as inside's complement; at
+// integer iso values on integer data the two differ, and both are the surface): p lies within
+// a cell of the surface.
+bool nearSurface(const Grid& g, const Vec3d& p, double iso) {
+  const Vec3i d = g.dims();
+  for (int dz = -1; dz <= 1; ++dz)
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        const Vec3i c{int(std::floor(p.x)) + dx, int(std::floor(p.y)) + dy, int(std::floor(p.z)) + dz};
+        if (c.x < 0 || c.y < 0 || c.z < 0 || c.x > d.x - 2 || c.y > d.y - 2 || c.z > d.z - 2) continue;
+        float v[8];
+        g.cellCorners(c.x, c.y, c.z, v);
+        bool above = false, below = false;
+        for (float f : v) {
+          above = above || f >= iso;
+          below = below || f <= iso;
+        }
+        if (above && below) return true;
+      }
+  return false;
+}
+
+// Share of triangles whose face normal points to lower values (the documented winding).
+double windingAgreement(const IsoMesh& m) {
+  size_t agree = 0;
+  for (size_t t = 0; t < m.indices.size(); t += 3) {
+    const Vec3d a = m.positions[m.indices[t]];
+    const Vec3d n = cross(m.positions[m.indices[t + 1]] - a, m.positions[m.indices[t + 2]] - a);
+    const Vec3d g = m.gradients[m.indices[t]] + m.gradients[m.indices[t + 1]] + m.gradients[m.indices[t + 2]];
+    agree += dot(n, g) < 0;
+  }
+  return double(agree) / double(m.indices.size() / 3);
+}
+
+TEST(IsoMesh, SphereIsClosedAndOnTheSurface) {
+  const int n = 33;
+  const Grid g = makeProceduralGrid(Field::Sphere, {n, n, n});
+  const double r = 0.6;
+  const IsoMesh m = extractIsoMesh(g, r);
+  ASSERT_GT(m.indices.size(), 3000u);
+  ASSERT_EQ(m.positions.size(), m.gradients.size());
+  EXPECT_TRUE(openEdges(m).empty()) << "a sphere inside the grid must give a closed mesh";
+  const double cell = 2.0 / (n - 1);
+  for (const Vec3d& p : m.positions) {
+    const Vec3d world = Vec3d{-1, -1, -1} + p * cell;
+    EXPECT_LT(std::fabs(length(world) - r), cell) << "vertex farther than a cell from the sphere";
+    EXPECT_TRUE(nearSurface(g, p, r));
+  }
+  EXPECT_GT(windingAgreement(m), 0.999);
+}
+
+// Real volumes whose surfaces reach the grid's faces: open only there, and on the surface.
+TEST(IsoMesh, RealVolumesAreClosedAwayFromTheGridBoxAndOnTheSurface) {
+  const struct { const char* file; double iso; } cases[] = {
+      {"volumes/neghip_64x64x64_uint8.raw", 40}, {"volumes/hydrogen_atom_128x128x128_uint8.raw", 20},
+      {"volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz", 150}, {"volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz", 150.5}};
+  for (const auto& c : cases) {
+    SCOPED_TRACE(std::string(c.file) + " iso " + std::to_string(c.iso));
+    const Grid g = loadVolumeFile(test::dataPath(c.file), {});
+    const IsoMesh m = extractIsoMesh(g, c.iso);
+    ASSERT_GT(m.indices.size(), 3000u);
+    const Vec3i d = g.dims();
+    for (const auto& [a, b] : openEdges(m)) {
+      // Both ends of an open edge lie within a cell of one of the grid's faces.
+      for (uint32_t v : {a, b}) {
+        const Vec3d& p = m.positions[v];
+        const bool atFace = p.x < 1 || p.y < 1 || p.z < 1 || p.x > d.x - 2 || p.y > d.y - 2 || p.z > d.z - 2;
+        EXPECT_TRUE(atFace) << "open edge inside the grid at (" << p.x << ", " << p.y << ", " << p.z << ")";
+      }
+    }
+    size_t off = 0;
+    for (const Vec3d& p : m.positions) off += !nearSurface(g, p, c.iso);
+    EXPECT_EQ(off, 0u) << "vertices farther than a cell from the surface";
+    EXPECT_GT(windingAgreement(m), 0.98);
+  }
+}
+
+TEST(IsoMesh, NoSurfaceGivesNoTriangles) {
+  const Grid g = makeProceduralGrid(Field::Sphere, {9, 9, 9});
+  EXPECT_TRUE(extractIsoMesh(g, 5.0).indices.empty());
+}
+
+}  // namespace
+}  // namespace iso
