@@ -13,7 +13,9 @@ the volumes; then both are rendered with the same camera, lights, spp and seed, 
 Prints per scene and mode the median render seconds, rays per second, the iso/mesh ratio of
 the medians and the relative image difference (mean |iso - mesh| / mean mesh, path mode).
 Usage: bench/iso_vs_mesh.py [--runs N] [--resolution WxH] [--modes path,camera,shadow]
-       [--json FILE] [SCENE.json ...]
+       [--json FILE] [--isotrace BINARY] [SCENE.json ...]
+--isotrace renders with another build (e.g. an older commit's, to compare before and after;
+the meshes are always extracted with this checkout's build/isotrace).
 """
 import argparse
 import json
@@ -89,8 +91,11 @@ def mode_scene(path, mode, work):
     return out, ["--threads", "1"]
 
 
+RENDERER = ISOTRACE
+
+
 def render(scene, extra, resolution, image, stats):
-    run([ISOTRACE, "render", scene, "-o", image, "--resolution", resolution, "--quiet", "--seed", "7",
+    run([RENDERER, "render", scene, "-o", image, "--resolution", resolution, "--quiet", "--seed", "7",
          "--stats", stats] + extra)
     with open(stats) as f:
         s = json.load(f)
@@ -116,7 +121,11 @@ def main():
     parser.add_argument("--resolution", default="960x540")
     parser.add_argument("--modes", default="path,camera,shadow")
     parser.add_argument("--json")
+    parser.add_argument("--isotrace", help="the isotrace binary that renders (default: build/isotrace)")
     args = parser.parse_args()
+    global RENDERER
+    if args.isotrace:
+        RENDERER = os.path.abspath(args.isotrace)
     if args.runs < 1:
         sys.exit("iso_vs_mesh: --runs must be at least 1")
     scenes = args.scenes or sorted(
