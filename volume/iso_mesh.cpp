@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 
 #include "volume/cell_cubic.h"
 
@@ -33,18 +34,22 @@ Vec3d gradientAt(const Grid& grid, const Vec3d& p) {
 IsoMesh extractIsoMesh(const Grid& grid, double iso) {
   openvdb::initialize();
   const Vec3i d = grid.dims();
-  // A dense float copy in index space (voxel (i, j, k) = sample (i, j, k)), made sparse by
-  // OpenVDB; the background lies below the iso value, so the only surface it adds is the cap
-  // outside the box, dropped below.
+  // The grid's own samples seen as an OpenVDB dense grid in index space (voxel (i, j, k) =
+  // sample (i, j, k); LayoutXYZ is x fastest, as the grid is: no copy), made sparse as floats.
+  // The background lies below the iso value, so the only surface it adds is the cap outside
+  // the box, dropped below.
   const openvdb::CoordBBox box(openvdb::Coord(0, 0, 0), openvdb::Coord(d.x - 1, d.y - 1, d.z - 1));
   openvdb::FloatGrid::Ptr vdb = openvdb::FloatGrid::create(float(iso) - 1.f);
-  {
-    openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(box);
-    // LayoutXYZ is z fastest; the grid is x fastest.
-    for (int z = 0; z < d.z; ++z)
-      for (int y = 0; y < d.y; ++y)
-        for (int x = 0; x < d.x; ++x) dense.setValue(x, y, z, grid.value(x, y, z));
-    openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/0.f);
+  auto copy = [&](auto* samples) {
+    using T = std::remove_const_t<std::remove_pointer_t<decltype(samples)>>;
+    openvdb::tools::Dense<T, openvdb::tools::LayoutXYZ> dense(box, const_cast<T*>(samples));
+    openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/float(0));
+  };
+  switch (grid.type()) {
+    case ScalarType::UInt8: copy(static_cast<const uint8_t*>(grid.data())); break;
+    case ScalarType::UInt16: copy(static_cast<const uint16_t*>(grid.data())); break;
+    case ScalarType::Int16: copy(static_cast<const int16_t*>(grid.data())); break;
+    case ScalarType::Float32: copy(static_cast<const float*>(grid.data())); break;
   }
   std::vector<openvdb::Vec3s> points;
   std::vector<openvdb::Vec3I> triangles;
