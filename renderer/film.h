@@ -1,6 +1,7 @@
 #pragma once
 // The image being rendered (linear RGB, float), its extra layers (AOVs), and how it reaches
 // disk.
+#include <deque>
 #include <map>
 #include <string>
 #include <vector>
@@ -23,20 +24,22 @@ class Film {
   int height() const { return m_height; }
   Vec3f& at(int x, int y) { return m_pixels[size_t(y) * m_width + x]; }
   const Vec3f& at(int x, int y) const { return m_pixels[size_t(y) * m_width + x]; }
+  // The reference stays valid when more layers are added (a deque never moves its elements on
+  // push_back; a vector did, and two AOVs wrote through a dangling reference).
   Layer& addLayer(const std::string& name, std::vector<std::string> channels) {
     m_layers.push_back({name, std::move(channels), {}});
     m_layers.back().data.assign(size_t(m_width) * m_height * m_layers.back().channels.size(), 0.f);
     return m_layers.back();
   }
-  const std::vector<Layer>& layers() const { return m_layers; }
-  std::vector<Layer>& layers() { return m_layers; }
+  const std::deque<Layer>& layers() const { return m_layers; }
+  std::deque<Layer>& layers() { return m_layers; }
   // Mean of the Rec. 709 luminance of the main layer.
   double meanLuminance() const;
 
  private:
   int m_width, m_height;
   std::vector<Vec3f> m_pixels;
-  std::vector<Layer> m_layers;
+  std::deque<Layer> m_layers;
 };
 
 enum class ImageFormat { Exr, Png };
