@@ -54,38 +54,46 @@ Bytes readFile(const std::string& path) {
 }
 
 // Inflates gzip or zlib streams (windowBits 32+15 detects either), including concatenated
-// gzip members. Truncated or corrupt input is an error, never a short grid.
-Bytes inflateBytes(const Bytes& in, const std::string& file) {
-  Bytes out;
+// gzip members, handing the output to `sink(bytes, count)` in pieces of at most 64 KiB as it
+// comes (so a caller can stop a stream that grows past what it expects). Truncated or corrupt
+// input is an error, never a short grid.
+template <typename Sink>
+void inflateStream(const Bytes& in, const std::string& file, Sink&& sink) {
+  struct Stream {  // inflateEnd on every way out, the sink's exceptions included
+    z_stream zs{};
+    bool open = false;
+    ~Stream() { if (open) inflateEnd(&zs); }
+  };
   size_t consumed = 0;
   while (consumed < in.size()) {
-    z_stream zs{};
-    if (inflateInit2(&zs, 32 + MAX_WBITS) != Z_OK) throw InputError(file, "", "zlib init failed");
-    zs.next_in = const_cast<Bytef*>(in.data() + consumed);
-    zs.avail_in = uInt(in.size() - consumed);
+    Stream s;
+    if (inflateInit2(&s.zs, 32 + MAX_WBITS) != Z_OK) throw InputError(file, "", "zlib init failed");
+    s.open = true;
+    s.zs.next_in = const_cast<Bytef*>(in.data() + consumed);
+    s.zs.avail_in = uInt(std::min<size_t>(in.size() - consumed, UINT32_MAX));
     int rc = Z_OK;
     uint8_t buffer[1 << 16];
     while (rc != Z_STREAM_END) {
-      zs.next_out = buffer;
-      zs.avail_out = sizeof(buffer);
-      rc = inflate(&zs, Z_NO_FLUSH);
+      s.zs.next_out = buffer;
+      s.zs.avail_out = sizeof(buffer);
+      rc = inflate(&s.zs, Z_NO_FLUSH);
       if (rc != Z_OK && rc != Z_STREAM_END) {
-        const std::string msg = rc == Z_BUF_ERROR ? "truncated compressed data"
-                                                  : "corrupt compressed data";
-        inflateEnd(&zs);
-        throw InputError(file, "byte " + std::to_string(consumed + zs.total_in), msg);
+        const std::string msg = rc == Z_BUF_ERROR ? "truncated compressed data" : "corrupt compressed data";
+        throw InputError(file, "byte " + std::to_string(consumed + s.zs.total_in), msg);
       }
-      out.insert(out.end(), buffer, buffer + (sizeof(buffer) - zs.avail_out));
-      if (rc == Z_OK && zs.avail_in == 0 && zs.avail_out != 0) {
-        inflateEnd(&zs);
+      sink(buffer, sizeof(buffer) - s.zs.avail_out);
+      if (rc == Z_OK && s.zs.avail_in == 0 && s.zs.avail_out != 0)
         throw InputError(file, "byte " + std::to_string(in.size()), "truncated compressed data");
-      }
     }
-    consumed += zs.total_in;
-    inflateEnd(&zs);
+    consumed += s.zs.total_in;
     // Trailing zero padding after the last gzip member is tolerated.
     if (std::all_of(in.begin() + consumed, in.end(), [](uint8_t b) { return b == 0; })) break;
   }
+}
+
+Bytes inflateBytes(const Bytes& in, const std::string& file) {
+  Bytes out;
+  inflateStream(in, file, [&](const uint8_t* p, size_t n) { out.insert(out.end(), p, p + n); });
   return out;
 }
 
@@ -175,47 +183,20 @@ Grid makeGrid(const Vec3i& dims, ScalarType type, const Bytes& bytes, bool bigEn
   return Grid(dims, type, std::shared_ptr<const void>(samples, samples.get()));
 }
 
-// Inflates a gzip (or zlib) stream, concatenated members included, straight into `out`, which
-// must come out exactly `expected` bytes long: more output is an error as soon as it appears (a
-// small bomb is never inflated whole), less is an error at the end.
+// Inflates a gzip (or zlib) stream straight into `out`, which must come out exactly `expected`
+// bytes long: more output is an error within 64 KiB of the first extra byte (a small bomb is
+// never inflated whole), less is an error at the end.
 void inflateInto(const Bytes& in, uint8_t* out, size_t expected, const Vec3i& dims, ScalarType type,
                  const std::string& file) {
-  size_t consumed = 0, produced = 0;
-  while (consumed < in.size()) {
-    z_stream zs{};
-    if (inflateInit2(&zs, 32 + MAX_WBITS) != Z_OK) throw InputError(file, "", "zlib init failed");
-    zs.next_in = const_cast<Bytef*>(in.data() + consumed);
-    zs.avail_in = uInt(std::min<size_t>(in.size() - consumed, UINT32_MAX));
-    uint8_t spill[1];
-    int rc = Z_OK;
-    while (rc != Z_STREAM_END) {
-      const bool full = produced == expected;
-      zs.next_out = full ? spill : out + produced;
-      zs.avail_out = full ? 1 : uInt(std::min<size_t>(expected - produced, 1u << 30));
-      const uInt before = zs.avail_out;
-      rc = inflate(&zs, Z_NO_FLUSH);
-      const size_t made = before - zs.avail_out;
-      if (full && made > 0) {
-        inflateEnd(&zs);
-        throw InputError(file, "", "decompressed data is larger than " + std::to_string(dims.x) + "x" +
-                                       std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " +
-                                       scalarTypeName(type) + " (" + std::to_string(expected) + " bytes)");
-      }
-      produced += full ? 0 : made;
-      if (rc != Z_OK && rc != Z_STREAM_END) {
-        const std::string msg = rc == Z_BUF_ERROR ? "truncated compressed data" : "corrupt compressed data";
-        inflateEnd(&zs);
-        throw InputError(file, "byte " + std::to_string(consumed + zs.total_in), msg);
-      }
-      if (rc == Z_OK && zs.avail_in == 0 && zs.avail_out != 0) {
-        inflateEnd(&zs);
-        throw InputError(file, "byte " + std::to_string(in.size()), "truncated compressed data");
-      }
-    }
-    consumed += zs.total_in;
-    inflateEnd(&zs);
-    if (std::all_of(in.begin() + consumed, in.end(), [](uint8_t b) { return b == 0; })) break;
-  }
+  size_t produced = 0;
+  inflateStream(in, file, [&](const uint8_t* p, size_t n) {
+    if (n > expected - produced)
+      throw InputError(file, "", "decompressed data is larger than " + std::to_string(dims.x) + "x" +
+                                     std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " +
+                                     scalarTypeName(type) + " (" + std::to_string(expected) + " bytes)");
+    std::memcpy(out + produced, p, n);
+    produced += n;
+  });
   if (produced != expected) throw InputError(file, "", sizeMismatch(dims, type, produced, expected));
 }
 
