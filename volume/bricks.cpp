@@ -1,5 +1,7 @@
 #include "volume/bricks.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <limits>
 
@@ -13,23 +15,36 @@ BrickGrid::BrickGrid(const Grid& grid) {
   const size_t n = size_t(m_count.x) * m_count.y * m_count.z;
   m_lo.assign(n, std::numeric_limits<float>::infinity());
   m_hi.assign(n, -std::numeric_limits<float>::infinity());
-  // One pass over the samples; a sample on a brick boundary belongs to both bricks.
-  for (int z = 0; z < d.z; ++z) {
-    const int bz0 = std::min(z / kCells, m_count.z - 1), bz1 = std::max((z - 1) / kCells, 0);
-    for (int y = 0; y < d.y; ++y) {
-      const int by0 = std::min(y / kCells, m_count.y - 1), by1 = std::max((y - 1) / kCells, 0);
-      for (int x = 0; x < d.x; ++x) {
-        const int bx0 = std::min(x / kCells, m_count.x - 1), bx1 = std::max((x - 1) / kCells, 0);
-        const float v = grid.value(x, y, z);
-        for (int bz = std::min(bz0, bz1); bz <= std::max(bz0, bz1); ++bz)
-          for (int by = std::min(by0, by1); by <= std::max(by0, by1); ++by)
-            for (int bx = std::min(bx0, bx1); bx <= std::max(bx0, bx1); ++bx) {
-              const size_t b = (size_t(bz) * m_count.y + by) * m_count.x + bx;
-              m_lo[b] = std::min(m_lo[b], v);
-              m_hi[b] = std::max(m_hi[b], v);
+  // Brick by brick over its own corner samples (a sample on a brick boundary is read by both
+  // bricks): rows of up to 9 samples in the grid's own type, a tight loop the compiler keeps in
+  // registers (one pass over the samples that scattered each into its bricks took 0.8 s for 512^3).
+  auto scan = [&](const auto* data) {
+    // Slabs of bricks in parallel, each writing only its own bricks.
+    tbb::parallel_for(0, m_count.z, [&](int bz) {
+      for (int by = 0; by < m_count.y; ++by)
+        for (int bx = 0; bx < m_count.x; ++bx) {
+          const uint32_t b = uint32_t((size_t(bz) * m_count.y + by) * m_count.x + bx);
+          const Vec3i c0 = cellBegin(b), c1 = cellEnd(b);
+          float lo = m_lo[b], hi = m_hi[b];
+          for (int z = c0.z; z <= c1.z; ++z)
+            for (int y = c0.y; y <= c1.y; ++y) {
+              const auto* row = data + grid.index(c0.x, y, z);
+              for (int x = 0; x <= c1.x - c0.x; ++x) {
+                const float v = float(row[x]);
+                lo = std::min(lo, v);
+                hi = std::max(hi, v);
+              }
             }
-      }
-    }
+          m_lo[b] = lo;
+          m_hi[b] = hi;
+        }
+    });
+  };
+  switch (grid.type()) {
+    case ScalarType::UInt8: scan(static_cast<const uint8_t*>(grid.data())); break;
+    case ScalarType::UInt16: scan(static_cast<const uint16_t*>(grid.data())); break;
+    case ScalarType::Int16: scan(static_cast<const int16_t*>(grid.data())); break;
+    case ScalarType::Float32: scan(static_cast<const float*>(grid.data())); break;
   }
 }
 

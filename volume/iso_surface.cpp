@@ -1,5 +1,7 @@
 #include "volume/iso_surface.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <type_traits>
@@ -56,32 +58,35 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
   const float isoF = float(iso);
   m_primitives.resize(m_active.size());
   m_cellClasses.resize(m_active.size());
-  for (size_t i = 0; i < m_active.size(); ++i) {
-    const Vec3i c0 = bricks.cellBegin(m_active[i]), c1 = bricks.cellEnd(m_active[i]);
-    CellClasses& classes = m_cellClasses[i];
-    Vec3i lo = c1, hi = c0;
-    for (int z = c0.z; z < c1.z; ++z)
-      for (int y = c0.y; y < c1.y; ++y)
-        for (int x = c0.x; x < c1.x; ++x) {
-          float v[8];
-          grid.cellCorners(x, y, z, v);
-          bool above = true, below = true;
-          for (float f : v) {
-            above = above && f > isoF && double(f) > iso;
-            below = below && f < isoF && double(f) < iso;
+  withCellAccess(grid, nullptr, {}, [&](const auto& cells) {
+    // Bricks are independent: in parallel, each writing only its own entries.
+    tbb::parallel_for(size_t(0), m_active.size(), [&](size_t i) {
+      const Vec3i c0 = bricks.cellBegin(m_active[i]), c1 = bricks.cellEnd(m_active[i]);
+      CellClasses& classes = m_cellClasses[i];
+      Vec3i lo = c1, hi = c0;
+      for (int z = c0.z; z < c1.z; ++z)
+        for (int y = c0.y; y < c1.y; ++y)
+          for (int x = c0.x; x < c1.x; ++x) {
+            float v[8];
+            cells.load(Vec3i{x, y, z}, 0.f, v);
+            bool above = true, below = true;
+            for (float f : v) {
+              above = above && f > isoF && double(f) > iso;
+              below = below && f < isoF && double(f) < iso;
+            }
+            const uint64_t bit = uint64_t(1) << ((y - c0.y) * 8 + (x - c0.x));
+            if (above) classes.positive[z - c0.z] |= bit;
+            if (below) classes.negative[z - c0.z] |= bit;
+            if (!above && !below) {
+              lo = min(lo, Vec3i{x, y, z});
+              hi = max(hi, Vec3i{x + 1, y + 1, z + 1});
+            }
           }
-          const uint64_t bit = uint64_t(1) << ((y - c0.y) * 8 + (x - c0.x));
-          if (above) classes.positive[z - c0.z] |= bit;
-          if (below) classes.negative[z - c0.z] |= bit;
-          if (!above && !below) {
-            lo = min(lo, Vec3i{x, y, z});
-            hi = max(hi, Vec3i{x + 1, y + 1, z + 1});
-          }
-        }
-    if (!(lo.x < hi.x)) lo = c0, hi = c1;  // cannot happen for an active brick; stay safe
-    m_primitives[i] = {lo, hi, c0};
-    m_primitiveOf[m_active[i]] = int32_t(i);
-  }
+      if (!(lo.x < hi.x)) lo = c0, hi = c1;  // cannot happen for an active brick; stay safe
+      m_primitives[i] = {lo, hi, c0};
+    });
+  });
+  for (size_t i = 0; i < m_active.size(); ++i) m_primitiveOf[m_active[i]] = int32_t(i);
 }
 
 template <bool AnyHit>
