@@ -90,44 +90,44 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
 }
 
 template <bool AnyHit>
-bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir,
-                       double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
-                       StartClass start, GridRayCache* cache) const {
+bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin,
+                       const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit,
+                       TraversalStats& stats, StartClass start, GridRayCache* cache) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, on the grid's own sample type, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
-    GridRay<Real> ray;
-    if constexpr (std::is_same_v<Real, float>) {
-      if (cache && cache->surface == this) {
-        ray = cache->ray;
+      GridRay<Real> ray;
+      if constexpr (std::is_same_v<Real, float>) {
+        if (cache && cache->surface == this) {
+          ray = cache->ray;
+        } else {
+          ray = queryRay<Real>(m_grid, org, dir, tnear, start);
+          if (cache) *cache = {this, ray};
+        }
       } else {
         ray = queryRay<Real>(m_grid, org, dir, tnear, start);
-        if (cache) *cache = {this, ray};
       }
-    } else {
-      ray = queryRay<Real>(m_grid, org, dir, tnear, start);
-    }
-    CellHit<Real> cellHit;
-    if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
-                               cellHit, stats, start))
-      return false;
-    if constexpr (!AnyHit) {
-      Real g[8];
-      cells.load(cellHit.cell, Real(m_iso), g);
-      const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
-      const double len = length(grad);
-      // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
-      // a tiny direction does not underflow to a NaN.
-      const double dirScale = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
-      hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir / dirScale));
-      hit->t = double(cellHit.t);
-      hit->tError = double(cellHit.tError);
-      hit->tangent = cellHit.tangent;
-      hit->insideAfter = cellHit.insideAfter;
-    }
-    return true;
+      CellHit<Real> cellHit;
+      if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
+                                 cellHit, stats, start))
+        return false;
+      if constexpr (!AnyHit) {
+        Real g[8];
+        cells.load(cellHit.cell, Real(m_iso), g);
+        const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
+        const double len = length(grad);
+        // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
+        // a tiny direction does not underflow to a NaN.
+        const double dirScale = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
+        hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir / dirScale));
+        hit->t = double(cellHit.t);
+        hit->tError = double(cellHit.tError);
+        hit->tangent = cellHit.tangent;
+        hit->insideAfter = cellHit.insideAfter;
+      }
+      return true;
     });
   };
   switch (m_spec.kind) {

@@ -102,8 +102,9 @@ class IsoSurface {
 
  private:
   template <bool AnyHit>
-  bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-             SurfaceHit* hit, TraversalStats& stats, StartClass start, GridRayCache* cache = nullptr) const;
+  bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org,
+             const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
+             StartClass start, GridRayCache* cache = nullptr) const;
 
   const Grid& m_grid;
   const BrickGrid& m_bricks;

@@ -123,13 +123,6 @@ inline decltype(auto) withCellAccess(const Grid& grid, const CellClasses* classe
   return f(CellAccess<float>(grid, classes, origin));
 }
 
-template <typename Real>
-inline void loadCell(const Grid& grid, const Vec3i& c, Real iso, Real g[8]) {
-  float v[8];
-  grid.cellCorners(c.x, c.y, c.z, v);
-  for (int i = 0; i < 8; ++i) g[i] = Real(v[i]) - iso;
-}
-
 // Where a segment's cubic ends exactly at zero (s = 1), the side it comes from: the sign of
 // the first non-zero of -df, d2f, -d3f at s = 1; `flat` if the cubic is constant.
 template <typename Real>
