@@ -143,9 +143,11 @@ def main():
             for mode in modes:
                 times = {"iso": [], "mesh": []}
                 rays = {}
+                scenes_of_mode = {kind: mode_scene(path, mode, work)
+                                  for kind, path in (("iso", iso_path), ("mesh", mesh_path))}
                 for r in range(args.runs):
-                    for kind, path in (("iso", iso_path), ("mesh", mesh_path)):
-                        s, extra = mode_scene(path, mode, work)
+                    for kind in ("iso", "mesh"):
+                        s, extra = scenes_of_mode[kind]
                         image = os.path.join(work, "%s.%s.%s.exr" % (name, mode, kind))
                         seconds, ray_counts = render(s, extra, args.resolution, image,
                                                      os.path.join(work, "stats.json"))

@@ -515,10 +515,9 @@ int exportMesh(const MeshFlags& flags) {
   }
   out.indices = mesh.indices;
   // The mesh is wound counter-clockwise seen from lower values; glTF's front is the solid's
-  // outside, which is the higher side for a solid below the iso value.
-  if (!surface.solidAbove)
-    for (size_t t = 0; t < out.indices.size(); t += 3) std::swap(out.indices[t + 1], out.indices[t + 2]);
-  if (desc.transform.determinant() < 0)  // a mirror flips the winding
+  // outside, which is the higher side for a solid below the iso value; a mirroring transform
+  // flips the winding once more.
+  if (!surface.solidAbove != (desc.transform.determinant() < 0))
     for (size_t t = 0; t < out.indices.size(); t += 3) std::swap(out.indices[t + 1], out.indices[t + 2]);
   if (!surface.material.empty()) {
     const MaterialDesc& m = scene.materials.at(surface.material);

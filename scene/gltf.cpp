@@ -624,7 +624,6 @@ void saveGltfMesh(const std::string& path, const GltfMeshOut& mesh) {
   material.pbrMetallicRoughness.baseColorFactor = {mesh.color.x, mesh.color.y, mesh.color.z, 1.0};
   material.pbrMetallicRoughness.metallicFactor = mesh.metallic;
   material.pbrMetallicRoughness.roughnessFactor = mesh.roughness;
-  material.doubleSided = mesh.doubleSided;
   model.materials.push_back(material);
 
   tinygltf::Primitive primitive;

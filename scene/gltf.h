@@ -72,7 +72,6 @@ struct GltfMeshOut {
   std::vector<uint32_t> indices;          // three per triangle, counter-clockwise = front
   Vec3f color{0.8f, 0.8f, 0.8f};
   float metallic = 0, roughness = 0.5f;
-  bool doubleSided = false;
 };
 
 // Writes `mesh` as binary glTF (.glb) or as .gltf with its buffer embedded, through a

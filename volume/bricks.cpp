@@ -18,7 +18,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
   // Brick by brick over its own corner samples (a sample on a brick boundary is read by both
   // bricks): rows of up to 9 samples in the grid's own type, a tight loop the compiler keeps in
   // registers (one pass over the samples that scattered each into its bricks took 0.8 s for 512^3).
-  auto scan = [&](const auto* data) {
+  grid.visitSamples([&](const auto* data) {
     // Slabs of bricks in parallel, each writing only its own bricks.
     tbb::parallel_for(0, m_count.z, [&](int bz) {
       for (int by = 0; by < m_count.y; ++by)
@@ -39,13 +39,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
           m_hi[b] = hi;
         }
     });
-  };
-  switch (grid.type()) {
-    case ScalarType::UInt8: scan(static_cast<const uint8_t*>(grid.data())); break;
-    case ScalarType::UInt16: scan(static_cast<const uint16_t*>(grid.data())); break;
-    case ScalarType::Int16: scan(static_cast<const int16_t*>(grid.data())); break;
-    case ScalarType::Float32: scan(static_cast<const float*>(grid.data())); break;
-  }
+  });
 }
 
 Vec3i BrickGrid::cellBegin(uint32_t b) const {

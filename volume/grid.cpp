@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <type_traits>
 
 #include <limits>
 
@@ -51,40 +50,19 @@ Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec
     : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(type), m_samples(std::move(samples)),
       m_data(m_samples.get()) {}
 
-namespace {
-
-// Calls f(pointer, count) with the samples in their own type.
-template <typename F>
-void visitSamples(ScalarType type, const void* data, size_t n, F&& f) {
-  switch (type) {
-    case ScalarType::UInt8: f(static_cast<const uint8_t*>(data), n); break;
-    case ScalarType::UInt16: f(static_cast<const uint16_t*>(data), n); break;
-    case ScalarType::Int16: f(static_cast<const int16_t*>(data), n); break;
-    case ScalarType::Float32: f(static_cast<const float*>(data), n); break;
-  }
-}
-
-}  // namespace
-
 void Grid::cellCorners(int x, int y, int z, float out[8]) const {
   const size_t sx = 1, sy = size_t(m_dims.x), sz = size_t(m_dims.x) * m_dims.y;
   const size_t i = index(x, y, z);
   const size_t offsets[8] = {0, sx, sy, sx + sy, sz, sx + sz, sy + sz, sx + sy + sz};
-  auto fetch = [&](const auto* p) {
+  visitSamples([&](const auto* p) {
     for (int c = 0; c < 8; ++c) out[c] = float(p[i + offsets[c]]);
-  };
-  switch (m_type) {
-    case ScalarType::UInt8: fetch(static_cast<const uint8_t*>(m_data)); break;
-    case ScalarType::UInt16: fetch(static_cast<const uint16_t*>(m_data)); break;
-    case ScalarType::Int16: fetch(static_cast<const int16_t*>(m_data)); break;
-    case ScalarType::Float32: fetch(static_cast<const float*>(m_data)); break;
-  }
+  });
 }
 
 double Grid::sum() const {
   double s = 0;
-  visitSamples(m_type, m_data, sampleCount(), [&](const auto* v, size_t n) {
-    for (size_t i = 0; i < n; ++i) s += double(v[i]);
+  visitSamples([&](const auto* v) {
+    for (size_t i = 0; i < sampleCount(); ++i) s += double(v[i]);
   });
   return s;
 }
@@ -92,21 +70,25 @@ double Grid::sum() const {
 void Grid::range(float& lo, float& hi) const {
   lo = std::numeric_limits<float>::infinity();
   hi = -lo;
-  visitSamples(m_type, m_data, sampleCount(), [&](const auto* v, size_t n) {
-    for (size_t i = 0; i < n; ++i) { lo = std::min(lo, float(v[i])); hi = std::max(hi, float(v[i])); }
+  visitSamples([&](const auto* v) {
+    for (size_t i = 0; i < sampleCount(); ++i) { lo = std::min(lo, float(v[i])); hi = std::max(hi, float(v[i])); }
   });
 }
 
-double Grid::interpolate(const Vec3d& p) const {
-  int c[3];
-  double f[3];
+void Grid::locate(const Vec3d& p, Vec3i& cell, Vec3d& local) const {
   for (int a = 0; a < 3; ++a) {
     const double x = std::clamp(p[a], 0.0, double(m_dims[a] - 1));
-    c[a] = std::min(int(std::floor(x)), m_dims[a] - 2);
-    f[a] = x - c[a];
+    cell[a] = std::min(int(std::floor(x)), m_dims[a] - 2);
+    local[a] = x - cell[a];
   }
+}
+
+double Grid::interpolate(const Vec3d& p) const {
+  Vec3i c;
+  Vec3d f;
+  locate(p, c, f);
   float v[8];
-  cellCorners(c[0], c[1], c[2], v);
+  cellCorners(c.x, c.y, c.z, v);
   double r = 0;
   for (int i = 0; i < 8; ++i)
     r += double(v[i]) * (i & 1 ? f[0] : 1 - f[0]) * (i & 2 ? f[1] : 1 - f[1]) * (i & 4 ? f[2] : 1 - f[2]);

@@ -39,6 +39,18 @@ class Grid {
   ScalarType type() const { return m_type; }
   // The samples, of type type(), x fastest.
   const void* data() const { return m_data; }
+  // Calls f(samples) with `samples` a `const T*` of the grid's own sample type: one switch for
+  // the caller's whole loop (the traversal, brick ranges, mesh export) instead of one per value.
+  template <typename F>
+  decltype(auto) visitSamples(F&& f) const {
+    switch (m_type) {
+      case ScalarType::UInt8: return f(static_cast<const uint8_t*>(m_data));
+      case ScalarType::UInt16: return f(static_cast<const uint16_t*>(m_data));
+      case ScalarType::Int16: return f(static_cast<const int16_t*>(m_data));
+      case ScalarType::Float32: break;
+    }
+    return f(static_cast<const float*>(m_data));
+  }
   size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
   size_t bytes() const { return sampleCount() * scalarTypeSize(m_type); }
 
@@ -59,6 +71,9 @@ class Grid {
   float value(int x, int y, int z) const { return value(index(x, y, z)); }
   // The 8 corners of cell (x, y, z); corner c = bit0 x, bit1 y, bit2 z.
   void cellCorners(int x, int y, int z, float out[8]) const;
+  // The cell holding continuous grid coordinates `p` (clamped to the grid) and p's cell-local
+  // coordinates in it, in [0, 1].
+  void locate(const Vec3d& p, Vec3i& cell, Vec3d& local) const;
   // The trilinear field in double at continuous grid coordinates (clamped to the grid): the
   // exact class of a point for checks and tests.
   double interpolate(const Vec3d& gridCoord) const;

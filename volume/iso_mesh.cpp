@@ -16,17 +16,12 @@ namespace {
 // The gradient of the trilinear field at continuous grid coordinates (cell-local units are
 // grid units), the same one the intersector shades with.
 Vec3d gradientAt(const Grid& grid, const Vec3d& p) {
-  const Vec3i d = grid.dims();
-  int c[3];
-  Vec3f local;
-  for (int a = 0; a < 3; ++a) {
-    const double x = std::clamp(p[a], 0.0, double(d[a] - 1));
-    c[a] = std::min(int(std::floor(x)), d[a] - 2);
-    local[a] = float(x - c[a]);
-  }
+  Vec3i cell;
+  Vec3d local;
+  grid.locate(p, cell, local);
   float g[8];
-  grid.cellCorners(c[0], c[1], c[2], g);
-  return Vec3d(trilinearGradient(g, local));
+  grid.cellCorners(cell.x, cell.y, cell.z, g);
+  return Vec3d(trilinearGradient(g, Vec3f(local)));
 }
 
 }  // namespace
@@ -40,17 +35,11 @@ IsoMesh extractIsoMesh(const Grid& grid, double iso) {
   // the box, dropped below.
   const openvdb::CoordBBox box(openvdb::Coord(0, 0, 0), openvdb::Coord(d.x - 1, d.y - 1, d.z - 1));
   openvdb::FloatGrid::Ptr vdb = openvdb::FloatGrid::create(float(iso) - 1.f);
-  auto copy = [&](auto* samples) {
+  grid.visitSamples([&](const auto* samples) {
     using T = std::remove_const_t<std::remove_pointer_t<decltype(samples)>>;
     openvdb::tools::Dense<T, openvdb::tools::LayoutXYZ> dense(box, const_cast<T*>(samples));
     openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/float(0));
-  };
-  switch (grid.type()) {
-    case ScalarType::UInt8: copy(static_cast<const uint8_t*>(grid.data())); break;
-    case ScalarType::UInt16: copy(static_cast<const uint16_t*>(grid.data())); break;
-    case ScalarType::Int16: copy(static_cast<const int16_t*>(grid.data())); break;
-    case ScalarType::Float32: copy(static_cast<const float*>(grid.data())); break;
-  }
+  });
   std::vector<openvdb::Vec3s> points;
   std::vector<openvdb::Vec3I> triangles;
   std::vector<openvdb::Vec4I> quads;

@@ -193,11 +193,7 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
   // primitive for a ray starting inside its box); every other cell is seen by no query.
   if (!inGrid) return false;
   const int32_t primitive = m_primitiveOf[m_bricks.brickOf(cell)];
-  if (primitive >= 0) {
-    const Primitive& p = m_primitives[primitive];
-    if (cell.x >= p.lo.x && cell.y >= p.lo.y && cell.z >= p.lo.z && cell.x < p.hi.x && cell.y < p.hi.y && cell.z < p.hi.z)
-      return false;
-  }
+  if (primitive >= 0 && m_primitives[primitive].contains(cell)) return false;
   const Vec3i next{cell.x + 1, cell.y + 1, cell.z + 1};
   return hit ? query<false>(cell, next, nullptr, {}, org, dir, tnear, tfar, hit, stats, start)
              : query<true>(cell, next, nullptr, {}, org, dir, tnear, tfar, nullptr, stats, start);

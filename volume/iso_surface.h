@@ -115,6 +115,9 @@ class IsoSurface {
   struct Primitive {
     Vec3i lo, hi;  // tight box: cells [lo, hi)
     Vec3i brickOrigin;
+    bool contains(const Vec3i& c) const {
+      return c.x >= lo.x && c.y >= lo.y && c.z >= lo.z && c.x < hi.x && c.y < hi.y && c.z < hi.z;
+    }
   };
   std::vector<uint32_t> m_active;
   std::vector<int32_t> m_primitiveOf;  // per brick: index into m_primitives, or -1

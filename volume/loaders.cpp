@@ -12,8 +12,6 @@
 #include <map>
 #include <regex>
 #include <sstream>
-#include <type_traits>
-#include <variant>
 
 #include "volume/input_error.h"
 
@@ -39,17 +37,29 @@ bool endsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
-Bytes readFile(const std::string& path) {
+// Opens a file for reading and tells its size; errors name the file.
+std::ifstream openFile(const std::string& path, size_t& size) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, "", "cannot open file");
-  const auto size = fs::file_size(path, ec);
+  size = fs::file_size(path, ec);
   if (ec) throw InputError(path, "", "cannot read the file size");
-  Bytes data(size);
-  in.read(reinterpret_cast<char*>(data.data()), std::streamsize(size));
+  return in;
+}
+
+// Reads `size` bytes from `in` into `out`, or throws.
+void readExactly(std::ifstream& in, uint8_t* out, size_t size, const std::string& path) {
+  in.read(reinterpret_cast<char*>(out), std::streamsize(size));
   if (in.bad() || size_t(in.gcount()) != size) throw InputError(path, "", "read error");
+}
+
+Bytes readFile(const std::string& path) {
+  size_t size;
+  std::ifstream in = openFile(path, size);
+  Bytes data(size);
+  readExactly(in, data.data(), size, path);
   return data;
 }
 
@@ -110,20 +120,24 @@ void checkSpacing(const Vec3d& s, const std::string& file, const std::string& wh
     throw InputError(file, where, "spacing must be positive and finite");
 }
 
+// "256x256x133 uint8", for messages.
+std::string layoutName(const Vec3i& dims, ScalarType type) {
+  return std::to_string(dims.x) + "x" + std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " +
+         scalarTypeName(type);
+}
+
 std::string sizeMismatch(const Vec3i& dims, ScalarType type, size_t have, size_t expected) {
-  return "data has " + std::to_string(have) + " bytes but " + std::to_string(dims.x) + "x" +
-         std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " + scalarTypeName(type) + " needs " +
+  return "data has " + std::to_string(have) + " bytes but " + layoutName(dims, type) + " needs " +
          std::to_string(expected);
 }
 
-// Samples and bytes of a grid, or an error if the product does not fit in memory sizes.
-size_t checkedBytes(const Vec3i& dims, ScalarType type, const std::string& file, size_t& count) {
+// Bytes of a grid, or an error if the product does not fit in memory sizes.
+size_t checkedBytes(const Vec3i& dims, ScalarType type, const std::string& file) {
   const unsigned __int128 n = (unsigned __int128)(uint64_t(dims.x)) * uint64_t(dims.y) * uint64_t(dims.z);
   const unsigned __int128 bytes = n * scalarTypeSize(type);
   if (bytes > (unsigned __int128)(SIZE_MAX / 2))
     throw InputError(file, "", "dimensions " + std::to_string(dims.x) + "x" + std::to_string(dims.y) + "x" +
                                    std::to_string(dims.z) + " are too large");
-  count = size_t(n);
   return size_t(bytes);
 }
 
@@ -174,8 +188,7 @@ void finishSamples(uint8_t* data, ScalarType type, const Vec3i& dims, bool bigEn
 // Turns raw little/big-endian bytes into a typed grid; the size must match exactly.
 Grid makeGrid(const Vec3i& dims, ScalarType type, const Bytes& bytes, bool bigEndian,
               const std::string& file) {
-  size_t count;
-  const size_t expected = checkedBytes(dims, type, file, count);
+  const size_t expected = checkedBytes(dims, type, file);
   if (bytes.size() != expected) throw InputError(file, "", sizeMismatch(dims, type, bytes.size(), expected));
   std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
   std::memcpy(samples.get(), bytes.data(), expected);
@@ -191,9 +204,8 @@ void inflateInto(const Bytes& in, uint8_t* out, size_t expected, const Vec3i& di
   size_t produced = 0;
   inflateStream(in, file, [&](const uint8_t* p, size_t n) {
     if (n > expected - produced)
-      throw InputError(file, "", "decompressed data is larger than " + std::to_string(dims.x) + "x" +
-                                     std::to_string(dims.y) + "x" + std::to_string(dims.z) + " " +
-                                     scalarTypeName(type) + " (" + std::to_string(expected) + " bytes)");
+      throw InputError(file, "", "decompressed data is larger than " + layoutName(dims, type) + " (" +
+                                     std::to_string(expected) + " bytes)");
     std::memcpy(out + produced, p, n);
     produced += n;
   });
@@ -627,9 +639,8 @@ Grid loadVtk(const std::string& path) {
 // Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
 // memory is the grid itself); gzip-compressed ones are inflated straight into it.
 Grid loadRaw(const std::string& path, const RawLayout& layout) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
-  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
+  size_t fileSize;
+  std::ifstream in = openFile(path, fileSize);
   Vec3i dims;
   ScalarType type;
   const bool named = parseSciVisName(path, dims, type);
@@ -640,12 +651,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   if (!layout.type && !named)
     throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
   checkDims(dims, path, "");
-  size_t count;
-  const size_t expected = checkedBytes(dims, type, path, count);
-  const size_t fileSize = fs::file_size(path, ec);
-  if (ec) throw InputError(path, "", "cannot read the file size");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path, "", "cannot open file");
+  const size_t expected = checkedBytes(dims, type, path);
   char magic[2] = {0, 0};
   in.read(magic, 2);
   const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
@@ -656,8 +662,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
     inflateInto(readFile(path), dst, expected, dims, type, path);
   } else {
     in.seekg(0);
-    in.read(reinterpret_cast<char*>(dst), std::streamsize(expected));
-    if (in.bad() || size_t(in.gcount()) != expected) throw InputError(path, "", "read error");
+    readExactly(in, dst, expected, path);
   }
   finishSamples(dst, type, dims, layout.bigEndian, path);
   return Grid(dims, type, std::shared_ptr<const void>(samples, dst));

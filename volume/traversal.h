@@ -84,8 +84,9 @@ struct CellAccess {
   const CellClasses* classes = nullptr;  // of the brick whose first cell is `classOrigin`
   Vec3i classOrigin;
 
-  CellAccess(const Grid& grid, const CellClasses* brickClasses = nullptr, Vec3i brickOrigin = {})
-      : data(static_cast<const Sample*>(grid.data())), dims(grid.dims()), sy(size_t(dims.x)),
+  CellAccess(const Grid& grid, const Sample* samples, const CellClasses* brickClasses = nullptr,
+             Vec3i brickOrigin = {})
+      : data(samples), dims(grid.dims()), sy(size_t(dims.x)),
         sz(size_t(dims.x) * size_t(dims.y)), classes(brickClasses), classOrigin(brickOrigin) {}
 
   // Corner c = bit0 x, bit1 y, bit2 z; values minus the iso value. Every sample type converts
@@ -114,13 +115,7 @@ struct CellAccess {
 // Calls f(CellAccess<Sample>(...)) for the grid's sample type: the one switch per query.
 template <typename F>
 inline decltype(auto) withCellAccess(const Grid& grid, const CellClasses* classes, Vec3i origin, F&& f) {
-  switch (grid.type()) {
-    case ScalarType::UInt8: return f(CellAccess<uint8_t>(grid, classes, origin));
-    case ScalarType::UInt16: return f(CellAccess<uint16_t>(grid, classes, origin));
-    case ScalarType::Int16: return f(CellAccess<int16_t>(grid, classes, origin));
-    case ScalarType::Float32: break;
-  }
-  return f(CellAccess<float>(grid, classes, origin));
+  return grid.visitSamples([&](const auto* samples) { return f(CellAccess(grid, samples, classes, origin)); });
 }
 
 // Where a segment's cubic ends exactly at zero (s = 1), the side it comes from: the sign of
