@@ -45,6 +45,7 @@ struct IsoSurfaceDesc {
   std::string material;        // name in SceneDesc::materials; empty: default grey diffuse
   std::string materialWhere;   // JSON path of the reference, for messages
   bool solidAbove = true;      // the solid (e.g. glass) is where value > iso
+  bool smoothNormals = true;   // shading normals from Grid::smoothGradient; false: the cell's own
 };
 
 enum class MeshShape { None, Sphere, Quad };

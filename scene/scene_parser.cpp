@@ -418,6 +418,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
         iso.color = ir.rgb("color", 0, 1);
         iso.material = materialRef(ir, iso.materialWhere);
         iso.solidAbove = ir.choice("inside", "above", {"above", "below"}) == "above";
+        iso.smoothNormals = ir.choice("normals", "smooth", {"smooth", "cell"}) == "smooth";
         ir.finish();
         v.isosurfaces.push_back(iso);
       }

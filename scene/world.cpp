@@ -320,6 +320,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       s.volume = int(v);
       s.iso = isoDesc.value;
       s.solidAbove = isoDesc.solidAbove;
+      s.smoothNormals = isoDesc.smoothNormals;
       if (!isoDesc.material.empty()) {
         s.material = materialFor(scene, isoDesc.material);
       } else if (isoDesc.color) {
@@ -456,7 +457,18 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   const double gridRounding = 8 * 0x1p-24 * (std::max({g.x, g.y, g.z}) + 1) * scale;
   hit.spawnOffset = float(std::min(dot(absv(Vec3d(hit.normal)), Vec3d(hit.pError)), gridRounding));
   if (!info.solidAbove) hit.normal = -hit.normal;
+  // The shading normal: the smooth gradient at the hit (the cell's own gradient jumps across
+  // cell faces, which shades in facets). It only shades; orientation, spawning and the class
+  // stay with the exact surface's geometric normal, which it may not contradict.
   hit.shading = hit.normal;
+  if (info.smoothNormals) {
+    const Vec3d gridCoord = (info.surface->objectOrigin(hit.position64) - grid.origin()) / grid.spacing();
+    Vec3d n = -grid.smoothGradient(gridCoord) / grid.spacing();
+    if (toWorld) n = toWorld->normal(n);
+    if (!info.solidAbove) n = -n;
+    const double len = length(n);
+    if (len > 0 && std::isfinite(len) && dot(n, Vec3d(hit.normal)) > 0) hit.shading = Vec3f(n / len);
+  }
 }
 
 // A ray leaving an iso-surface whose origin lies in an inactive brick of that surface: no

@@ -45,6 +45,7 @@ struct SurfaceInfo {
   double iso = 0;
   int material = 0;
   bool solidAbove = true;
+  bool smoothNormals = true;
   std::unique_ptr<IsoSurface> surface;
 };
 

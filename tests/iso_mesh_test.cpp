@@ -54,16 +54,36 @@ bool nearSurface(const Grid& g, const Vec3d& p, double iso) {
   return false;
 }
 
-// Share of triangles whose face normal points to lower values (the documented winding).
-double windingAgreement(const IsoMesh& m) {
+// The trilinear field's own gradient at grid coordinates p (central differences of the
+// interpolant, in double).
+Vec3d fieldGradient(const Grid& g, const Vec3d& p) {
+  const double h = 1e-4;
+  Vec3d grad;
+  for (int a = 0; a < 3; ++a) {
+    Vec3d lo = p, hi = p;
+    lo[a] -= h;
+    hi[a] += h;
+    grad[a] = (g.interpolate(hi) - g.interpolate(lo)) / (2 * h);
+  }
+  return grad;
+}
+
+// Share of triangles whose face normal points to lower values of the field (the documented
+// winding), judged by the field's gradient at the triangle's centre.
+double windingAgreement(const Grid& g, const IsoMesh& m) {
   size_t agree = 0;
   for (size_t t = 0; t < m.indices.size(); t += 3) {
-    const Vec3d a = m.positions[m.indices[t]];
-    const Vec3d n = cross(m.positions[m.indices[t + 1]] - a, m.positions[m.indices[t + 2]] - a);
-    const Vec3d g = m.gradients[m.indices[t]] + m.gradients[m.indices[t + 1]] + m.gradients[m.indices[t + 2]];
-    agree += dot(n, g) < 0;
+    const Vec3d a = m.positions[m.indices[t]], b = m.positions[m.indices[t + 1]], c = m.positions[m.indices[t + 2]];
+    agree += dot(cross(b - a, c - a), fieldGradient(g, (a + b + c) / 3.0)) < 0;
   }
   return double(agree) / double(m.indices.size() / 3);
+}
+
+// Share of vertices whose exported (shading) gradient agrees in direction with the field's.
+double gradientAgreement(const Grid& g, const IsoMesh& m) {
+  size_t agree = 0;
+  for (size_t i = 0; i < m.positions.size(); ++i) agree += dot(m.gradients[i], fieldGradient(g, m.positions[i])) > 0;
+  return double(agree) / double(m.positions.size());
 }
 
 TEST(IsoMesh, SphereIsClosedAndOnTheSurface) {
@@ -80,7 +100,8 @@ TEST(IsoMesh, SphereIsClosedAndOnTheSurface) {
     EXPECT_LT(std::fabs(length(world) - r), cell) << "vertex farther than a cell from the sphere";
     EXPECT_TRUE(nearSurface(g, p, r));
   }
-  EXPECT_GT(windingAgreement(m), 0.999);
+  EXPECT_GT(windingAgreement(g, m), 0.999);
+  EXPECT_GT(gradientAgreement(g, m), 0.999);
 }
 
 // Real volumes whose surfaces reach the grid's faces: open only there, and on the surface.
@@ -105,7 +126,8 @@ TEST(IsoMesh, RealVolumesAreClosedAwayFromTheGridBoxAndOnTheSurface) {
     size_t off = 0;
     for (const Vec3d& p : m.positions) off += !nearSurface(g, p, c.iso);
     EXPECT_EQ(off, 0u) << "vertices farther than a cell from the surface";
-    EXPECT_GT(windingAgreement(m), 0.98);
+    EXPECT_GT(windingAgreement(g, m), 0.98);
+    EXPECT_GT(gradientAgreement(g, m), 0.99);
   }
 }
 

@@ -95,4 +95,26 @@ double Grid::interpolate(const Vec3d& p) const {
   return r;
 }
 
+Vec3d Grid::smoothGradient(const Vec3d& p) const {
+  Vec3i c;
+  Vec3d f;
+  locate(p, c, f);
+  const int64_t stride[3] = {1, m_dims.x, int64_t(m_dims.x) * m_dims.y};
+  Vec3d g{0, 0, 0};
+  visitSamples([&](const auto* v) {
+    for (int k = 0; k < 8; ++k) {
+      const Vec3i q{c.x + (k & 1), c.y + (k >> 1 & 1), c.z + (k >> 2 & 1)};
+      const size_t i = index(q.x, q.y, q.z);
+      const double w = (k & 1 ? f.x : 1 - f.x) * (k & 2 ? f.y : 1 - f.y) * (k & 4 ? f.z : 1 - f.z);
+      for (int a = 0; a < 3; ++a) {
+        // Central where both neighbours exist, one-sided on a face (dims >= 2 on every axis).
+        const bool hasLo = q[a] > 0, hasHi = q[a] < m_dims[a] - 1;
+        const double lo = double(v[hasLo ? i - stride[a] : i]), hi = double(v[hasHi ? i + stride[a] : i]);
+        g[a] += w * (hi - lo) / (hasLo && hasHi ? 2 : 1);
+      }
+    }
+  });
+  return g;
+}
+
 }  // namespace iso

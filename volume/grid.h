@@ -77,6 +77,11 @@ class Grid {
   // The trilinear field in double at continuous grid coordinates (clamped to the grid): the
   // exact class of a point for checks and tests.
   double interpolate(const Vec3d& gridCoord) const;
+  // A gradient that is continuous across cell faces, in value per grid step: central
+  // differences at the 8 corners of the cell holding `gridCoord` (one-sided on the grid's
+  // faces), interpolated trilinearly. The trilinear interpolant's own gradient jumps from cell
+  // to cell and shades iso-surfaces in facets; this is the smooth one shading normals use.
+  Vec3d smoothGradient(const Vec3d& gridCoord) const;
 
   // Sum of all samples in double: a cheap fingerprint for loader tests.
   double sum() const;

@@ -13,15 +13,18 @@
 namespace iso {
 namespace {
 
-// The gradient of the trilinear field at continuous grid coordinates (cell-local units are
-// grid units), the same one the intersector shades with.
-Vec3d gradientAt(const Grid& grid, const Vec3d& p) {
+// The shading gradient at a vertex, as the traced surface shades (World::fillIsoHit): the
+// smooth gradient, unless it points against the trilinear field's own gradient there (thin
+// or noisy features a central difference straddles), where the cell's gradient stays.
+Vec3d shadingGradient(const Grid& grid, const Vec3d& p) {
   Vec3i cell;
   Vec3d local;
   grid.locate(p, cell, local);
-  float g[8];
-  grid.cellCorners(cell.x, cell.y, cell.z, g);
-  return Vec3d(trilinearGradient(g, Vec3f(local)));
+  float corners[8];
+  grid.cellCorners(cell.x, cell.y, cell.z, corners);
+  const Vec3d own(trilinearGradient(corners, Vec3f(local)));
+  const Vec3d smooth = grid.smoothGradient(p);
+  return dot(smooth, own) > 0 ? smooth : own;
 }
 
 }  // namespace
@@ -60,7 +63,7 @@ IsoMesh extractIsoMesh(const Grid& grid, double iso) {
       remap[i] = uint32_t(mesh.positions.size());
       const Vec3d p{points[i].x(), points[i].y(), points[i].z()};
       mesh.positions.push_back(p);
-      mesh.gradients.push_back(gradientAt(grid, p));
+      mesh.gradients.push_back(shadingGradient(grid, p));
     }
     return remap[i];
   };

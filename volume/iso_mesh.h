@@ -11,7 +11,8 @@ namespace iso {
 
 struct IsoMesh {
   std::vector<Vec3d> positions;   // grid coordinates: sample (i, j, k) is at (i, j, k)
-  std::vector<Vec3d> gradients;   // of the trilinear field at each vertex (grid units)
+  std::vector<Vec3d> gradients;   // the shading gradient at each vertex (grid units), as the
+                                  // traced surface shades (iso_mesh.cpp)
   std::vector<uint32_t> indices;  // three per triangle, wound counter-clockwise seen from
                                   // the side of lower values (where the gradient points away)
 };
