@@ -263,9 +263,9 @@ int info(const std::string& path) {
   std::printf("  film %dx%d, %d spp, integrator %s (max depth %d), intersector %s\n", s.width, s.height, s.spp,
               s.integrator.c_str(), s.maxDepth, intersectorName(s.intersector).c_str());
   const CameraDesc& c = world.camera();
-  std::printf("  camera%s: position (%g, %g, %g), looking at (%g, %g, %g), fov %g degrees\n",
+  std::printf("  camera%s%s: position (%g, %g, %g), looking at (%g, %g, %g), fov %g degrees\n",
               scene.camera.gltfCamera.empty() ? "" : (" (glTF camera " + scene.camera.gltfCamera + ")").c_str(),
-              c.position.x, c.position.y, c.position.z, c.lookAt.x, c.lookAt.y, c.lookAt.z, c.fov);
+              scene.camera.frameScene ? " (none in the scene: framing its bounds)" : "", c.position.x, c.position.y, c.position.z, c.lookAt.x, c.lookAt.y, c.lookAt.z, c.fov);
   std::vector<std::string> skipped;
   if (world.meshes().empty()) skipped.push_back("no meshes: no triangle geometry is built");
   size_t images = 0;
@@ -290,11 +290,18 @@ int info(const std::string& path) {
                 g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
                 g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
                 vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
+    // Where the values lie, to choose iso values by: the range and a few quantiles.
+    const std::vector<double> shares{0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99};
+    const std::vector<double> q = g.quantiles(shares);
+    std::printf("    values %g to %g; quantiles", double(vi.bricks->minValue()), double(vi.bricks->maxValue()));
+    for (size_t i = 0; i < shares.size(); ++i) std::printf("%s %g%%: %.6g", i ? "," : "", shares[i] * 100, q[i]);
+    std::printf("%s\n", g.type() == ScalarType::Float32 ? " (float32: within 1/65536 of the range)" : "");
     for (const SurfaceInfo& si : world.surfaces())
       if (si.volume == int(v))
-        std::printf("    iso-surface %g: %zu of %zu bricks active (%.1f MiB of tight boxes and cell classes), material %s%s\n", si.iso,
-                    si.surface->activeBricks().size(), si.surface->totalBricks(), si.surface->bytes() / 1048576.0,
-                    world.materials()[si.material].name.c_str(),
+        std::printf("    iso-surface %g: %zu of %zu bricks active (%.1f%%; %.1f MiB of tight boxes and cell classes), "
+                    "material %s%s\n", si.iso, si.surface->activeBricks().size(), si.surface->totalBricks(),
+                    100.0 * double(si.surface->activeBricks().size()) / double(std::max<size_t>(1, si.surface->totalBricks())),
+                    si.surface->bytes() / 1048576.0, world.materials()[si.material].name.c_str(),
                     si.surface->activeBricks().empty() ? " (empty: not built)" : "");
   }
   std::printf("  materials in use: %zu\n", world.materials().size());

@@ -23,6 +23,8 @@ struct CameraDesc {
   // Take the camera from a glTF file of the scene instead: a camera name, or "#N" for the
   // N-th camera over all meshes in scene order. Resolved when the meshes are loaded.
   std::string gltfCamera;
+  // The scene file has no camera: World frames everything the scene holds (frameBounds).
+  bool frameScene = false;
 };
 
 // A named material of the scene file (materials of glTF files are read from the file).

@@ -295,6 +295,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   scene.path = path;
   ObjectReader r(root, "", path);
   if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path), scene.camera);
+  else scene.camera.frameScene = true;
   if (const Json* j = r.get("film")) {
     ObjectReader f(*j, "/film", path);
     scene.settings.width = f.integer("width", scene.settings.width, 1, 1 << 15);

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 
 #include "volume/input_error.h"
@@ -57,6 +58,19 @@ Grid loadVolume(const VolumeDesc& desc) {
   return grid;
 }
 
+CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov) {
+  // From the front (+z, the side glTF's default camera looks from), a little to the right and
+  // above, far enough for the bounding sphere to fit the vertical field of view (the narrower
+  // one of a landscape image).
+  CameraDesc c;
+  c.fov = fov;
+  c.lookAt = (lower + upper) * 0.5;
+  const double radius = std::max(0.5 * length(upper - lower), 1e-6);
+  const double distance = radius / std::sin(0.5 * fov * M_PI / 180) * 1.05;
+  c.position = c.lookAt + normalize(Vec3d{0.45, 0.35, 1}) * distance;
+  return c;
+}
+
 World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
   m_camera = scene.camera;
   Material fallback;
@@ -74,6 +88,11 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
     for (RTCScene sub : m_subScenes) rtcCommitScene(sub);
     rtcCommitScene(m_scene);
     m_buildSeconds += secondsSince(commitStart);
+    if (m_camera.frameScene) {
+      RTCBounds b;
+      rtcGetSceneBounds(m_scene, &b);
+      if (b.lower_x <= b.upper_x) m_camera = frameBounds({b.lower_x, b.lower_y, b.lower_z}, {b.upper_x, b.upper_y, b.upper_z});
+    }
   } catch (...) {
     release();
     throw;
@@ -332,6 +351,14 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
         s.material = int(m_materials.size() - 1);
       }
       s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector);
+      if (s.surface->activeBricks().empty()) {
+        char line[256];
+        const double lo = vol.bricks->minValue(), hi = vol.bricks->maxValue();
+        std::snprintf(line, sizeof line, "iso value %g %s the volume's values %g to %g: the surface is empty",
+                      isoDesc.value, isoDesc.value < lo || isoDesc.value > hi ? "lies outside" : "has no crossing among",
+                      lo, hi);
+        m_warnings.push_back(scene.path + ": " + desc.where + "/isosurfaces/" + std::to_string(k) + ": " + line);
+      }
       if (instanced) s.surface->setWorldToObject(desc.transform.inverse());
       // A surface with no active brick holds no primitive: nothing for Embree to build.
       if (!s.surface->activeBricks().empty()) {

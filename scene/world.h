@@ -171,6 +171,9 @@ Ray spawnRay(const Hit& hit, const Vec3f& dir);
 // ShadowEpsilon, so that an area light's own surface is not an occluder).
 Ray spawnRayTo(const Hit& hit, const Vec3f& target);
 
+// A camera that sees the whole box [lower, upper] (a scene file without a camera).
+CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov = 40);
+
 // Loads one volume of a scene with its placement applied (file header, then scene keys).
 Grid loadVolume(const VolumeDesc& desc);
 

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "scene/gltf.h"
+#include "scene/world.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -151,6 +152,44 @@ TEST(Cli, RendersAnExrWithNormalsAndPrintsItsPath) {
   ASSERT_EQ(info.status, 0) << info.err;
   EXPECT_NE(info.out.find("16x16x16 float32"), std::string::npos) << info.out;
   EXPECT_NE(info.out.find("bricks active"), std::string::npos) << info.out;
+  // The value range of the sphere's distances (0 at the centre sample is not on the grid of
+  // 16 points: the smallest is at the 8 samples next to it), and its quantiles.
+  EXPECT_NE(info.out.find("values 0.11547 to 1.73205; quantiles 1%:"), std::string::npos) << info.out;
+}
+
+// An iso value outside the volume's values renders nothing: both commands say so on stderr
+// (a warning, not an error), naming the scene and the surface. A scene without a camera
+// frames what it holds.
+TEST(Cli, IsoOutsideTheValuesWarnsAndNoCameraFramesTheScene) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/s.json";
+  test::writeText(path, R"({"film": {"width": 40, "height": 30}, "volumes": [{"procedural": {"field": "sphere",
+    "resolution": [16,16,16]}, "transform": {"translate": [100, 20, -30]}, "isosurfaces": [{"value": 0.5}, {"value": 7}]}]})");
+  const std::string warning = path + ": /volumes/0/isosurfaces/1: iso value 7 lies outside the volume's values 0.11547 to 1.73205";
+  const auto info = runIsotrace("info " + path);
+  ASSERT_EQ(info.status, 0) << info.err;
+  EXPECT_NE(info.err.find(warning), std::string::npos) << info.err;
+  EXPECT_NE(info.out.find("(none in the scene: framing its bounds)"), std::string::npos) << info.out;
+  const auto r = runIsotrace("render " + path + " -o " + dir + "/n.exr --integrator normals --spp 1 --aov depth --quiet");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find(warning), std::string::npos) << r.err;
+
+  // The framing camera sees the ball (radius 0.5 at (100, 20, -30)) whole: hits in the image's
+  // centre, none on its border.
+  World world(parseSceneFile(path), IntersectorSpec{});
+  Camera camera(world.camera(), 40, 30);
+  TraversalStats stats;
+  int centreHits = 0, borderHits = 0;
+  for (int y = 0; y < 30; ++y)
+    for (int x = 0; x < 40; ++x) {
+      Hit hit;
+      const bool hits = world.intersect(camera.generateRay(x + 0.5f, y + 0.5f), hit, stats);
+      const bool border = x == 0 || y == 0 || x == 39 || y == 29;
+      borderHits += hits && border;
+      centreHits += hits && std::abs(x - 20) < 3 && std::abs(y - 15) < 3;
+    }
+  EXPECT_EQ(centreHits, 25);
+  EXPECT_EQ(borderHits, 0);
 }
 
 // A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky.

@@ -232,6 +232,28 @@ TEST(Loaders, TruncatedRealGzipIsAnError) {
   expectInputError(cut, "truncated compressed data");
 }
 
+// Quantiles, which `isotrace info` prints to choose iso values by: exact for integer types,
+// within a histogram bin of the range for float32.
+TEST(Grid, QuantilesOfKnownValues) {
+  // 0, 1, ..., 999 as int16 shifted to -500 ... 499, and the same as float32 times 0.5.
+  std::vector<int16_t> ints(1000);
+  std::vector<float> floats(1000);
+  for (int i = 0; i < 1000; ++i) {
+    ints[size_t(i * 7919 % 1000)] = int16_t(i - 500);  // shuffled: order must not matter
+    floats[size_t(i * 7919 % 1000)] = 0.5f * float(i - 500);
+  }
+  const Grid gi({10, 10, 10}, Grid::Storage(ints));
+  const Grid gf({10, 10, 10}, Grid::Storage(floats));
+  const std::vector<double> q = gi.quantiles({0, 0.25, 0.5, 0.999, 1});
+  EXPECT_EQ(q, (std::vector<double>{-500, -250, 0, 499, 499}));
+  const std::vector<double> f = gf.quantiles({0, 0.25, 0.5, 1});
+  const double bin = 499.5 / 65536;
+  EXPECT_NEAR(f[0], -250, bin);
+  EXPECT_NEAR(f[1], -125, bin);
+  EXPECT_NEAR(f[2], 0, bin);
+  EXPECT_NEAR(f[3], 249.5, bin);
+}
+
 TEST(Procedural, SphereFieldIsTheDistanceToTheCentre) {
   const Grid g = makeProceduralGrid(Field::Sphere, {5, 5, 5});
   EXPECT_EQ(g.value(2, 2, 2), 0.f);

@@ -40,6 +40,10 @@ BrickGrid::BrickGrid(const Grid& grid) {
         }
     });
   });
+  if (n) {
+    m_min = *std::min_element(m_lo.begin(), m_lo.end());
+    m_max = *std::max_element(m_hi.begin(), m_hi.end());
+  }
 }
 
 Vec3i BrickGrid::cellBegin(uint32_t b) const {

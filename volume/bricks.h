@@ -28,11 +28,15 @@ class BrickGrid {
   // means > iso; a brick whose max is iso holds a crossing on its boundary).
   std::vector<uint32_t> activeBricks(float iso) const;
   size_t bytes() const { return m_lo.size() * 2 * sizeof(float); }
+  // The grid's value range (every sample is some brick's corner).
+  float minValue() const { return m_min; }
+  float maxValue() const { return m_max; }
 
  private:
   Vec3i m_cellDims;
   Vec3i m_count;
   std::vector<float> m_lo, m_hi;
+  float m_min = 0, m_max = 0;
 };
 
 }  // namespace iso

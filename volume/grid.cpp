@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include <limits>
+#include <type_traits>
 
 namespace iso {
 
@@ -73,6 +74,38 @@ void Grid::range(float& lo, float& hi) const {
   visitSamples([&](const auto* v) {
     for (size_t i = 0; i < sampleCount(); ++i) { lo = std::min(lo, float(v[i])); hi = std::max(hi, float(v[i])); }
   });
+}
+
+std::vector<double> Grid::quantiles(const std::vector<double>& q) const {
+  float lo, hi;
+  range(lo, hi);
+  const size_t n = sampleCount();
+  constexpr int kBins = 65536;
+  std::vector<uint64_t> counts(kBins, 0);
+  // Integer samples index their own bin (int16 shifted by 32768); floats a bin of the range.
+  double binLo = 0, binWidth = 1;
+  visitSamples([&](const auto* v) {
+    using T = std::remove_const_t<std::remove_pointer_t<decltype(v)>>;
+    if constexpr (std::is_integral_v<T>) {
+      binLo = std::is_signed_v<T> ? -32768.0 : 0.0;
+      for (size_t i = 0; i < n; ++i) ++counts[size_t(int64_t(v[i]) - int64_t(binLo))];
+    } else {
+      binLo = lo;
+      binWidth = hi > lo ? (double(hi) - lo) / kBins : 1;
+      for (size_t i = 0; i < n; ++i)
+        ++counts[std::min(size_t((double(v[i]) - lo) / binWidth), size_t(kBins - 1))];
+    }
+  });
+  const bool exact = type() != ScalarType::Float32;
+  std::vector<double> out;
+  for (double share : q) {
+    const uint64_t rank = std::min<uint64_t>(n - 1, uint64_t(std::clamp(share, 0.0, 1.0) * double(n)));
+    uint64_t seen = 0;
+    int bin = 0;
+    while (bin < kBins - 1 && seen + counts[bin] <= rank) seen += counts[bin++];
+    out.push_back(exact ? binLo + bin : std::clamp(binLo + (bin + 0.5) * binWidth, double(lo), double(hi)));
+  }
+  return out;
 }
 
 void Grid::locate(const Vec3d& p, Vec3i& cell, Vec3d& local) const {

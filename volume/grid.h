@@ -87,6 +87,9 @@ class Grid {
   double sum() const;
   // Value range over all samples.
   void range(float& lo, float& hi) const;
+  // The values below which the shares `q` (each in [0, 1]) of the samples lie: exact for the
+  // integer types (a count per value), within (max - min) / 65536 for float32 (a histogram).
+  std::vector<double> quantiles(const std::vector<double>& q) const;
 
  private:
   Vec3i m_dims{0, 0, 0};
