@@ -11,6 +11,7 @@
 #include <unistd.h>
 #include <tbb/task_arena.h>
 #include <map>
+#include <optional>
 #include <regex>
 
 #include "bench/accuracy.h"
@@ -24,11 +25,29 @@ namespace iso {
 namespace {
 
 struct RenderFlags {
-  std::string scene, output, integrator, intersector, resolution, aov, stats;
+  std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap;
   int spp = 0, threads = -1, maxDepth = 0;
   long long seed = -1;
-  bool quiet = false;
+  bool quiet = false, alpha = false;
+  std::optional<double> exposure;
 };
+
+// --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
+DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
+  DisplaySettings d;
+  if (f.exposure) {
+    if (!(*f.exposure >= -30 && *f.exposure <= 30)) throw InputError("--exposure", "", "expected EV in [-30, 30]");
+    d.exposure = *f.exposure;
+  }
+  if (!f.tonemap.empty() && !parseTonemap(f.tonemap, d.tonemap))
+    throw InputError("--tonemap", "", "unknown curve '" + f.tonemap + "' (known: clamp, aces, filmic)");
+  if (imageFormatFor(output) == ImageFormat::Exr && (f.exposure || !f.tonemap.empty()))
+    std::fprintf(stderr, "isotrace: warning: --exposure and --tonemap shape PNG and JPEG output; %s stays linear\n",
+                 output.c_str());
+  if (f.alpha && imageFormatFor(output) == ImageFormat::Jpeg)
+    throw InputError("--alpha", "", "JPEG has no alpha channel: write .png or .exr");
+  return d;
+}
 
 // Flags override the scene file; each is checked here so that a bad one is an InputError.
 void applyFlags(const RenderFlags& f, SceneDesc& scene) {
@@ -153,13 +172,14 @@ int render(const RenderFlags& flags) {
   const std::string output = flags.output.empty()
                                  ? std::filesystem::path(flags.scene).stem().string() + ".png"
                                  : flags.output;
-  imageFormatFor(output);  // reject a bad output name before any work
+  const DisplaySettings display = displayFlags(flags, output);  // bad names and values before any work
   const RenderSettings& s = scene.settings;
   RenderOptions options;
   options.spp = s.spp;
   options.seed = s.seed;
   options.threads = s.threads;
   options.aovs = parseAovs(flags.aov, output);
+  options.alpha = flags.alpha;
   options.progress = !flags.quiet && isatty(2);
   if (!flags.stats.empty()) {
     const std::filesystem::path sp(flags.stats);
@@ -188,6 +208,10 @@ int render(const RenderFlags& flags) {
       {"isotrace:intersector", intersectorName(s.intersector)},
       {"isotrace:seed", std::to_string(s.seed)}};
   if (result.interrupted) metadata["isotrace:interrupted"] = "1";
+  if (imageFormatFor(output) != ImageFormat::Exr) {
+    metadata["isotrace:exposure"] = jsonNumber(display.exposure);
+    metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
+  }
   std::vector<std::string> written;
   if (direct) {
     // global = everything, direct = paths of depth 1, indirect = global - direct.
@@ -195,15 +219,16 @@ int render(const RenderFlags& flags) {
     for (int y = 0; y < s.height; ++y)
       for (int x = 0; x < s.width; ++x) indirect.at(x, y) = film.at(x, y) - direct->at(x, y);
     const std::string global = withSuffix(output, "global");
-    writeImage(withSuffix(output, "direct"), *direct, false, metadata);
-    writeImage(global, film, false, metadata);
-    writeImage(withSuffix(output, "indirect"), indirect, false, metadata);
+    direct->alpha() = indirect.alpha() = film.alpha();
+    writeImage(withSuffix(output, "direct"), *direct, false, metadata, display);
+    writeImage(global, film, false, metadata, display);
+    writeImage(withSuffix(output, "indirect"), indirect, false, metadata, display);
     written = {withSuffix(output, "direct"), global, withSuffix(output, "indirect")};
     const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
     std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
                  "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
   } else {
-    writeImage(output, film, integrator->signedOutput(), metadata);
+    writeImage(output, film, integrator->signedOutput(), metadata, display);
     written = {output};
   }
   const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -550,7 +575,7 @@ int runCommandLine(int argc, char** argv) {
   RenderFlags flags;
   CLI::App* renderCmd = app.add_subcommand("render", "render a scene to an EXR or PNG image");
   renderCmd->add_option("scene", flags.scene, "scene file (JSON)")->required();
-  renderCmd->add_option("-o,--output", flags.output, "output image, .exr (linear) or .png (sRGB); default <scene>.png");
+  renderCmd->add_option("-o,--output", flags.output, "output image, .exr (linear), .png or .jpg (sRGB); default <scene>.png");
   renderCmd->add_option("--spp", flags.spp, "samples per pixel");
   renderCmd->add_option("--integrator", flags.integrator, std::string("integrator: ") + integratorList());
   renderCmd->add_option("--max-depth", flags.maxDepth, "longest path for direct/path/compare (1: direct light only)");
@@ -561,6 +586,9 @@ int runCommandLine(int argc, char** argv) {
   renderCmd->add_option("--threads", flags.threads, "worker threads (0: all cores)");
   renderCmd->add_option("--seed", flags.seed, "random seed");
   renderCmd->add_flag("--quiet", flags.quiet, "print only the output path");
+  renderCmd->add_option("--exposure", flags.exposure, "PNG/JPEG: scale radiance by 2^EV before tone mapping (default 0)");
+  renderCmd->add_option("--tonemap", flags.tonemap, "PNG/JPEG: clamp (default), aces or filmic");
+  renderCmd->add_flag("--alpha", flags.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
   std::string infoScene;
   CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
   infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();

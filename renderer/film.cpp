@@ -19,7 +19,8 @@ ImageFormat imageFormatFor(const std::string& path) {
   std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
   if (ext == ".exr") return ImageFormat::Exr;
   if (ext == ".png") return ImageFormat::Png;
-  throw InputError(path, "", "output must end in .exr or .png");
+  if (ext == ".jpg" || ext == ".jpeg") return ImageFormat::Jpeg;
+  throw InputError(path, "", "output must end in .exr, .png or .jpg");
 }
 
 namespace {
@@ -31,6 +32,45 @@ float linearToSrgb(float v) {
 
 }  // namespace
 
+bool parseTonemap(const std::string& name, Tonemap& tonemap) {
+  if (name == "clamp") tonemap = Tonemap::Clamp;
+  else if (name == "aces") tonemap = Tonemap::Aces;
+  else if (name == "filmic") tonemap = Tonemap::Filmic;
+  else return false;
+  return true;
+}
+
+const char* tonemapName(Tonemap tonemap) {
+  switch (tonemap) {
+    case Tonemap::Clamp: return "clamp";
+    case Tonemap::Aces: return "aces";
+    case Tonemap::Filmic: return "filmic";
+  }
+  return "?";
+}
+
+float applyTonemap(float v, Tonemap tonemap) {
+  if (!(v > 0)) return 0;  // NaN and negatives
+  switch (tonemap) {
+    case Tonemap::Clamp: return std::min(v, 1.f);
+    case Tonemap::Aces:
+      // Narkowicz 2015, "ACES Filmic Tone Mapping Curve": a fit of the ACES reference rendering
+      // and output transforms, per channel (input pre-scaled by 0.6 as in that fit).
+      v *= 0.6f;
+      return std::clamp(v * (2.51f * v + 0.03f) / (v * (2.43f * v + 0.59f) + 0.14f), 0.f, 1.f);
+    case Tonemap::Filmic: {
+      // Hable 2010, "Filmic Tonemapping for Real-time Rendering" (Uncharted 2): a toe and a
+      // long shoulder, white at 11.2, input doubled as in that talk.
+      auto curve = [](float x) {
+        const float A = 0.15f, B = 0.5f, C = 0.1f, D = 0.2f, E = 0.02f, F = 0.3f;
+        return (x * (A * x + C * B) + D * E) / (x * (A * x + B) + D * F) - E / F;
+      };
+      return std::clamp(curve(2 * v) / curve(11.2f), 0.f, 1.f);
+    }
+  }
+  return 0;
+}
+
 double Film::meanLuminance() const {
   double sum = 0;
   for (const Vec3f& p : m_pixels) sum += 0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z;
@@ -38,7 +78,7 @@ double Film::meanLuminance() const {
 }
 
 void writeImage(const std::string& path, const Film& film, bool signedData,
-                const std::map<std::string, std::string>& metadata) {
+                const std::map<std::string, std::string>& metadata, const DisplaySettings& display) {
   const ImageFormat format = imageFormatFor(path);
   const fs::path target(path);
   if (target.has_parent_path() && !fs::is_directory(target.parent_path()))
@@ -49,8 +89,10 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
                          target.extension().string());
   const int w = film.width(), h = film.height();
   const bool exr = format == ImageFormat::Exr;
-  int channels = 3;
+  const bool alpha = !film.alpha().empty() && format != ImageFormat::Jpeg;
+  int channels = alpha ? 4 : 3;
   std::vector<std::string> names = {"R", "G", "B"};
+  if (alpha) names.push_back("A");
   if (exr)
     for (const Film::Layer& layer : film.layers())
       for (const std::string& c : layer.channels) {
@@ -69,23 +111,32 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         const size_t pixel = size_t(y) * w + x;
         float* out = &floats[pixel * channels];
         for (int c = 0; c < 3; ++c) *out++ = film.at(x, y)[c];
+        if (alpha) *out++ = film.alpha()[pixel];
         for (const Film::Layer& layer : film.layers())
           for (size_t c = 0; c < layer.channels.size(); ++c) *out++ = layer.data[pixel * layer.channels.size() + c];
       }
   } else {
-    bytes.resize(size_t(w) * h * 3);
+    if (alpha) spec.alpha_channel = 3;
+    bytes.resize(size_t(w) * h * channels);
+    const float scale = float(std::exp2(display.exposure));
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x)
+      for (int x = 0; x < w; ++x) {
+        const size_t pixel = size_t(y) * w + x;
+        // PNG's alpha is straight: the premultiplied film is divided by the coverage.
+        const float a = alpha ? film.alpha()[pixel] : 1.f;
         for (int c = 0; c < 3; ++c) {
-          const float v = film.at(x, y)[c];
-          const float display = signedData ? std::clamp(0.5f * v + 0.5f, 0.f, 1.f) : linearToSrgb(v);
-          bytes[(size_t(y) * w + x) * 3 + c] = uint8_t(std::lround(display * 255));
+          const float v = film.at(x, y)[c] / (a > 0 ? a : 1.f);
+          const float shown = signedData ? std::clamp(0.5f * v + 0.5f, 0.f, 1.f)
+                                         : linearToSrgb(applyTonemap(v * scale, display.tonemap));
+          bytes[pixel * channels + c] = uint8_t(std::lround(shown * 255));
         }
+        if (alpha) bytes[pixel * channels + 3] = uint8_t(std::lround(std::clamp(a, 0.f, 1.f) * 255));
+      }
   }
   auto out = OIIO::ImageOutput::create(temp.string());
   bool ok = out && out->open(temp.string(), spec);
   if (ok) {
-    ok = format == ImageFormat::Exr ? out->write_image(OIIO::TypeDesc::FLOAT, floats.data())
+    ok = exr ? out->write_image(OIIO::TypeDesc::FLOAT, floats.data())
                                     : out->write_image(OIIO::TypeDesc::UINT8, bytes.data());
     ok = out->close() && ok;
   }

@@ -35,22 +35,42 @@ class Film {
   std::deque<Layer>& layers() { return m_layers; }
   // Mean of the Rec. 709 luminance of the main layer.
   double meanLuminance() const;
+  // Coverage: per pixel the share of camera samples that hit something (empty: not kept).
+  // With it the main layer holds no background (premultiplied by the coverage).
+  std::vector<float>& alpha() { return m_alpha; }
+  const std::vector<float>& alpha() const { return m_alpha; }
 
  private:
   int m_width, m_height;
   std::vector<Vec3f> m_pixels;
   std::deque<Layer> m_layers;
+  std::vector<float> m_alpha;
 };
 
-enum class ImageFormat { Exr, Png };
+enum class ImageFormat { Exr, Png, Jpeg };
+
+// How linear radiance becomes an 8-bit image (PNG, JPEG); EXR stays linear, untouched.
+enum class Tonemap { Clamp, Aces, Filmic };
+struct DisplaySettings {
+  double exposure = 0;  // EV: radiance times 2^exposure before the curve
+  Tonemap tonemap = Tonemap::Clamp;
+};
+// "clamp", "aces", "filmic"; false if unknown.
+bool parseTonemap(const std::string& name, Tonemap& tonemap);
+const char* tonemapName(Tonemap tonemap);
+// Linear radiance (after exposure) to display-linear [0, 1] by the curve.
+float applyTonemap(float v, Tonemap tonemap);
 
 // The format an output name asks for; InputError for anything else.
 ImageFormat imageFormatFor(const std::string& path);
 
-// EXR: linear float as rendered, with every extra layer. PNG: 8-bit sRGB, clamped, the main
-// layer only; signed data (normals) is mapped from [-1, 1] to [0, 1] instead. Written to a
-// temporary file beside `path` and renamed, so a failure never leaves a truncated image.
+// EXR: linear float as rendered, with every extra layer, and an "A" channel when the film has
+// coverage (premultiplied, OpenEXR's convention). PNG and JPEG: 8-bit sRGB of the main layer
+// after `display`; signed data (normals) is mapped from [-1, 1] to [0, 1] instead; PNG gets an
+// alpha channel when the film has coverage (straight, PNG's convention; JPEG has none).
+// Written to a temporary file beside `path` and renamed, so a failure never leaves a
+// truncated image.
 void writeImage(const std::string& path, const Film& film, bool signedData,
-                const std::map<std::string, std::string>& metadata);
+                const std::map<std::string, std::string>& metadata, const DisplaySettings& display = {});
 
 }  // namespace iso

@@ -23,7 +23,7 @@ volatile std::sig_atomic_t g_stop = 0;
 struct PixelSums {
   Vec3d L, L2, direct, albedo, normal;
   double depth = 0;
-  int depthHits = 0;
+  int depthHits = 0;  // samples whose camera ray hit something
   int samples = 0;
 };
 
@@ -83,13 +83,14 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
           const float jx = sampler.next(), jy = sampler.next();
           SampleResult r;
           integrator.Li(camera.generateRay(x + jx, y + jy), sampler, local, r);
-          const Vec3d L(r.L);
+          const bool background = !std::isfinite(r.depth);
+          const Vec3d L = options.alpha && background ? Vec3d{0, 0, 0} : Vec3d(r.L);
           p.L += L;
           p.L2 += L * L;
           p.direct += Vec3d(r.direct);
           p.albedo += Vec3d(r.albedo);
           p.normal += Vec3d(r.normal);
-          if (std::isfinite(r.depth)) {
+          if (!background) {
             p.depth += r.depth;
             ++p.depthHits;
           }
@@ -135,6 +136,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   Film::Layer* normal = want("normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
   Film::Layer* depth = want("depth") ? &film.addLayer("depth", {"Z"}) : nullptr;
   Film::Layer* variance = want("variance") ? &film.addLayer("variance", {"R", "G", "B"}) : nullptr;
+  if (options.alpha) film.alpha().assign(size_t(w) * h, 0.f);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
       const size_t i = size_t(y) * w + x;
@@ -152,6 +154,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
         }
       }
       if (depth) depth->data[i] = p.depthHits ? float(p.depth / p.depthHits) : INFINITY;
+      if (options.alpha) film.alpha()[i] = float(p.depthHits / n);
     }
   return result;
 }

@@ -21,6 +21,9 @@ struct RenderOptions {
   bool progress = false;  // a progress bar on stderr
   // Extra layers: any of "albedo", "normal", "depth", "variance" (of the pixel mean).
   std::vector<std::string> aovs;
+  // Coverage in Film::alpha(); samples whose camera ray hits nothing add no radiance (the
+  // background is transparent, though it still lights the scene).
+  bool alpha = false;
 };
 
 struct RenderResult {

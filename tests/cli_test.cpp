@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "scene/gltf.h"
+#include "renderer/film.h"
 #include "scene/world.h"
 #include "tests/test_util.h"
 
@@ -87,9 +88,79 @@ TEST(Cli, BadFlagsExitWithStatus2) {
   expectBadInput(dir, path + " --intersector cubic", "unknown intersector 'cubic'");
   expectBadInput(dir, path + " --integrator magic", "unknown integrator 'magic'");
   expectBadInput(dir, path + " --resolution 10by10", "expected WIDTHxHEIGHT");
+  expectBadInput(dir, path + " --tonemap reinhard", "--tonemap: unknown curve 'reinhard' (known: clamp, aces, filmic)");
+  expectBadInput(dir, path + " --exposure nan", "--exposure: expected EV in [-30, 30]");
+  expectBadInput(dir, path + " --exposure 40", "--exposure: expected EV in [-30, 30]");
   const auto r = runIsotrace("render " + path + " -o " + dir + "/out.tiff");
   EXPECT_EQ(r.status, 2);
-  EXPECT_NE(r.err.find("out.tiff: output must end in .exr or .png"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("out.tiff: output must end in .exr, .png or .jpg"), std::string::npos) << r.err;
+  const auto jpegAlpha = runIsotrace("render " + path + " --alpha -o " + dir + "/out.jpg");
+  EXPECT_EQ(jpegAlpha.status, 2);
+  EXPECT_NE(jpegAlpha.err.find("--alpha: JPEG has no alpha channel"), std::string::npos) << jpegAlpha.err;
+  EXPECT_FALSE(fs::exists(dir + "/out.jpg"));
+}
+
+// Reads an 8-bit image into bytes; its channel count in `channels`.
+std::vector<uint8_t> readBytes(const std::string& path, int& channels, int& width) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) return {};
+  const OIIO::ImageSpec& spec = in->spec();
+  channels = spec.nchannels;
+  width = spec.width;
+  std::vector<uint8_t> bytes(size_t(spec.width) * spec.height * spec.nchannels);
+  in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT8, bytes.data());
+  return bytes;
+}
+
+// Display options: --alpha gives coverage (0 where the camera sees only the sky, 1 on the
+// ball) and keeps the sky out of the colour; --exposure scales before the curve; the curves
+// keep 0 black, rise monotonically and never pass 1; JPEG is written.
+TEST(Cli, ExposureTonemapAndAlpha) {
+  for (Tonemap t : {Tonemap::Clamp, Tonemap::Aces, Tonemap::Filmic}) {
+    EXPECT_EQ(applyTonemap(0, t), 0.f);
+    EXPECT_EQ(applyTonemap(-1, t), 0.f);
+    EXPECT_EQ(applyTonemap(NAN, t), 0.f);
+    float last = 0;
+    for (float v = 0.01f; v < 1000; v *= 1.1f) {
+      const float m = applyTonemap(v, t);
+      EXPECT_GE(m, last) << tonemapName(t) << " at " << v;
+      EXPECT_LE(m, 1.f);
+      last = m;
+    }
+    EXPECT_GT(last, 0.95f) << tonemapName(t) << " must reach white";
+  }
+  // Unlike clamp, the curves still tell 2 from 4.
+  EXPECT_EQ(applyTonemap(2, Tonemap::Clamp), applyTonemap(4, Tonemap::Clamp));
+  EXPECT_LT(applyTonemap(2, Tonemap::Aces), applyTonemap(4, Tonemap::Aces));
+  EXPECT_LT(applyTonemap(2, Tonemap::Filmic), applyTonemap(4, Tonemap::Filmic));
+
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/s.json";
+  test::writeText(path, R"({"camera": {"position": [0, 0, 4]}, "film": {"width": 32, "height": 24},
+    "integrator": {"type": "direct", "spp": 4},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [16,16,16]}, "isosurfaces": [{"value": 0.5, "inside": "below"}]}],
+    "lights": [{"type": "environment", "radiance": 0.05}]})");
+  const auto plain = runIsotrace("render " + path + " -o " + dir + "/plain.png --quiet");
+  const auto alpha = runIsotrace("render " + path + " -o " + dir + "/alpha.png --alpha --quiet");
+  const auto bright = runIsotrace("render " + path + " -o " + dir + "/bright.png --exposure 2 --quiet");
+  const auto jpeg = runIsotrace("render " + path + " -o " + dir + "/a.jpg --tonemap filmic --quiet");
+  for (const auto* r : {&plain, &alpha, &bright, &jpeg}) ASSERT_EQ(r->status, 0) << r->err;
+  int cp = 0, ca = 0, cb = 0, cj = 0, w = 0;
+  const auto p = readBytes(dir + "/plain.png", cp, w), a = readBytes(dir + "/alpha.png", ca, w),
+             b = readBytes(dir + "/bright.png", cb, w), j = readBytes(dir + "/a.jpg", cj, w);
+  ASSERT_EQ(cp, 3);
+  ASSERT_EQ(ca, 4);
+  ASSERT_EQ(cj, 3);
+  ASSERT_EQ(p.size(), size_t(32 * 24 * 3));
+  ASSERT_EQ(a.size(), size_t(32 * 24 * 4));
+  // Corner: sky only. Centre: the ball.
+  const size_t corner = 0, centre = size_t(12 * 32 + 16);
+  EXPECT_GT(p[corner * 3], 0);         // the sky is seen without --alpha
+  EXPECT_EQ(a[corner * 4 + 3], 0);     // transparent with it
+  EXPECT_EQ(a[corner * 4], 0);
+  EXPECT_EQ(a[centre * 4 + 3], 255);   // the ball is opaque, its colour unchanged
+  EXPECT_NEAR(a[centre * 4], p[centre * 3], 1);
+  EXPECT_GT(b[centre * 3], p[centre * 3]);  // two stops brighter
 }
 
 // `watertight` and `bench` write the JSON the docs describe; the totals are the sums of the
