@@ -11,23 +11,32 @@ bool isBlack(const Vec3f& v) { return !(v.x > 0 || v.y > 0 || v.z > 0); }
 
 Vec3f PathIntegrator::sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, Sampler& sampler,
                                   RayCounters& counters) const {
-  const std::vector<Light>& lights = m_world.lights();
   const float uPick = sampler.next(), u0 = sampler.next(), u1 = sampler.next(), u2 = sampler.next();
-  if (lights.empty()) return {0, 0, 0};
-  const size_t index = std::min(size_t(uPick * lights.size()), lights.size() - 1);
-  const float pickPdf = 1.f / lights.size();
-  const Light& light = lights[index];
+  float pickPdf;
+  const int index = m_world.pickLight(uPick, pickPdf);
+  if (index < 0 || !(pickPdf > 0)) return {0, 0, 0};
+  const Light& light = m_world.lights()[size_t(index)];
   LightSample ls;
-  if (!light.sample(hit.position, u0, u1, u2, ls) || !(ls.pdf > 0) || isBlack(ls.L)) return {0, 0, 0};
+  if (!light.sample(hit.position, u0, u1, u2, ls) || !(ls.pdf > 0)) return {0, 0, 0};
+  if (!ls.traced && isBlack(ls.L)) return {0, 0, 0};
   // Opaque surfaces reflect only to the side wo is on: a light behind the geometric surface
   // is not seen through it, whatever the shading normal says.
   if (dot(ls.wi, hit.normal) * dot(wo, hit.normal) <= 0) return {0, 0, 0};
   const Vec3f f = bsdf.f(wo, ls.wi) * std::fabs(dot(ls.wi, bsdf.frame().n));
   if (isBlack(f)) return {0, 0, 0};
   ++counters.shadow;
-  const Ray shadow = std::isinf(ls.distance) ? spawnRay(hit, ls.wi)
-                                             : spawnRayTo(hit, hit.position + ls.wi * ls.distance);
-  if (m_world.occluded(shadow, counters.traversal)) return {0, 0, 0};
+  if (ls.traced) {
+    // An iso-surface light: its radiance is what the ray finds first, if that is the light.
+    Hit lit;
+    if (!m_world.intersect(spawnRay(hit, ls.wi), lit, counters.traversal) || m_world.lightOf(lit) != index)
+      return {0, 0, 0};
+    ls.L = m_world.emitted(lit, -ls.wi);
+    if (isBlack(ls.L)) return {0, 0, 0};
+  } else {
+    const Ray shadow = std::isinf(ls.distance) ? spawnRay(hit, ls.wi)
+                                               : spawnRayTo(hit, hit.position + ls.wi * ls.distance);
+    if (m_world.occluded(shadow, counters.traversal)) return {0, 0, 0};
+  }
   const float lightPdf = ls.pdf * pickPdf;
   const float weight = ls.delta ? 1.f : powerHeuristic(lightPdf, bsdf.pdf(wo, ls.wi));
   return f * ls.L * (weight / lightPdf);
@@ -35,7 +44,6 @@ Vec3f PathIntegrator::sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f&
 
 void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& counters, SampleResult& out) const {
   const std::vector<Light>& lights = m_world.lights();
-  const float pickPdf = lights.empty() ? 0.f : 1.f / lights.size();
   Vec3f L{0, 0, 0}, direct{0, 0, 0}, beta{1, 1, 1};
   Ray ray = cameraRay;
   ray.dir = normalize(ray.dir);
@@ -53,7 +61,8 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
     if (!m_world.intersect(ray, hit, counters.traversal)) {
       for (int i : m_world.environmentLights()) {
         const Vec3f Le = lights[i].environment(ray.dir);
-        const float w = bounce == 0 || specular ? 1.f : powerHeuristic(bsdfPdf, pickPdf * lights[i].pdfEnvironment(ray.dir));
+        const float w = bounce == 0 || specular ? 1.f
+                                                : powerHeuristic(bsdfPdf, m_world.lightProbability(i) * lights[i].pdfEnvironment(ray.dir));
         add(beta * Le * w);
       }
       break;
@@ -63,10 +72,14 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
     const Vec3f Le = m_world.emitted(hit, wo);
     if (!isBlack(Le)) {
       float w = 1;
-      // Emissive triangles were also reachable by light sampling; emissive iso-surfaces are
-      // not lights (found by BSDF sampling only), so they keep weight 1.
-      if (bounce > 0 && !specular && hit.light >= 0)
-        w = powerHeuristic(bsdfPdf, pickPdf * lights[hit.light].pdfArea(previous, hit.position, hit.normal));
+      // Emitters are also reached by light sampling (from the previous vertex): weigh by MIS.
+      const int light = m_world.lightOf(hit);
+      if (bounce > 0 && !specular && light >= 0) {
+        const Light& l = lights[size_t(light)];
+        const float pdf = l.kind() == Light::Kind::IsoSurface ? l.pdfIsoSurface(previous, ray.dir)
+                                                              : l.pdfArea(previous, hit.position, hit.normal);
+        w = powerHeuristic(bsdfPdf, m_world.lightProbability(light) * pdf);
+      }
       add(beta * Le * w);
     }
     if (bounce == m_maxDepth) break;

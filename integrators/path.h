@@ -13,8 +13,9 @@ class PathIntegrator final : public Integrator {
   void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override;
   bool splitsDirect() const override { return m_split; }
 
-  // One light chosen uniformly, one sample of it, a shadow ray; weighted against BSDF
-  // sampling by the power heuristic (delta lights: weight 1).
+  // One light chosen by power, one sample of it, a shadow ray (for an iso-surface light a
+  // ray that must hit it); weighted against BSDF sampling by the power heuristic (delta
+  // lights: weight 1).
   Vec3f sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, Sampler& sampler,
                     RayCounters& counters) const;
 

@@ -275,6 +275,7 @@ const char* lightKindName(Light::Kind k) {
     case Light::Kind::Directional: return "directional";
     case Light::Kind::Environment: return "environment";
     case Light::Kind::Area: return "area (emissive triangles)";
+    case Light::Kind::IsoSurface: return "emissive iso-surface";
   }
   return "?";
 }

@@ -102,6 +102,47 @@ Light Light::area(std::vector<Vec3f> triangles, std::vector<Vec2f> uvs, const Ma
   return l;
 }
 
+Light Light::isoSurface(int surface, std::vector<Vec3f> lower, std::vector<Vec3f> upper,
+                        const std::vector<float>& weights, const Material& material, float area) {
+  Light l;
+  l.m_kind = Kind::IsoSurface;
+  l.m_surface = surface;
+  l.m_material = &material;
+  l.m_boxLower = std::move(lower);
+  l.m_boxUpper = std::move(upper);
+  l.m_boxes = Distribution1D(weights);
+  l.m_area = area;
+  return l;
+}
+
+float Light::power(float sceneRadius) const {
+  const float r2 = sceneRadius * sceneRadius;
+  switch (m_kind) {
+    case Kind::Point: return 4 * kPi * luminance(m_power);
+    case Kind::Spot: return 2 * kPi * luminance(m_power) * (1 - 0.5f * (m_cosInner + m_cosOuter));
+    case Kind::Directional: return kPi * r2 * luminance(m_power);
+    case Kind::Environment: {
+      float mean = 1;
+      if (m_image) {
+        // The image's mean luminance, each texel weighted by its solid angle (sin theta).
+        double sum = 0, weight = 0;
+        for (int y = 0; y < m_image->height(); ++y) {
+          const double s = std::sin(kPi * (y + 0.5) / m_image->height());
+          for (int x = 0; x < m_image->width(); ++x) sum += s * luminance(m_image->texel(x, y).rgb());
+          weight += s * m_image->width();
+        }
+        mean = weight > 0 ? float(sum / weight) : 0.f;
+      }
+      return 4 * kPi * kPi * r2 * luminance(m_power) * mean;
+    }
+    case Kind::Area:
+      return kPi * luminance(m_material->emission) * float(m_areas.total()) * (m_material->twoSided ? 2 : 1);
+    case Kind::IsoSurface:
+      return kPi * luminance(m_material->emission) * m_area * (m_material->twoSided ? 2 : 1);
+  }
+  return 0;
+}
+
 Vec3f Light::emitted(int tri, float b1, float b2, const Vec3f& w) const {
   const Material& m = *m_material;
   if (!m.twoSided && dot(w, m_normals[tri]) <= 0) return {0, 0, 0};
@@ -170,6 +211,23 @@ bool Light::sample(const Vec3f& p, float u0, float u1, float u2, LightSample& s)
       s.L = environment(s.wi);
       return s.pdf > 0;
     }
+    case Kind::IsoSurface: {
+      // Towards a uniform point of a box chosen by weight (the first coordinate reuses the
+      // remainder of the box choice).
+      float pBox, ux;
+      const int b = m_boxes.sample(u0, pBox, ux);
+      const Vec3f lo = m_boxLower[size_t(b)], hi = m_boxUpper[size_t(b)];
+      const Vec3f y{lo.x + (hi.x - lo.x) * ux, lo.y + (hi.y - lo.y) * u1, lo.z + (hi.z - lo.z) * u2};
+      const Vec3f d = y - p;
+      const float len = length(d);
+      if (!(len > 0)) return false;
+      s.wi = d / len;
+      s.distance = std::numeric_limits<float>::infinity();
+      s.traced = true;
+      s.L = {0, 0, 0};
+      s.pdf = pdfIsoSurface(p, s.wi);
+      return s.pdf > 0 && std::isfinite(s.pdf);
+    }
     case Kind::Area: {
       float pTri, bu;
       const int tri = m_areas.sample(u0, pTri, bu);
@@ -203,6 +261,35 @@ float Light::pdfEnvironment(const Vec3f& wi) const {
   if (!(sinTheta > 0)) return 0;
   return m_rows.probability(y) * m_columns[y].probability(x) * m_image->width() * m_image->height() /
          (2 * kPi * kPi * sinTheta);
+}
+
+// A point uniform in a box of volume V seen from p: along direction w the density per solid
+// angle is the integral of t^2 / V over the part [t0, t1] of the ray inside the box, i.e.
+// (t1^3 - t0^3) / (3 V) (the solid angle element at distance t covers t^2 of area).
+float Light::pdfIsoSurface(const Vec3f& p, const Vec3f& wi) const {
+  if (m_kind != Kind::IsoSurface || m_boxes.total() <= 0) return 0;
+  double pdf = 0;
+  for (size_t b = 0; b < m_boxLower.size(); ++b) {
+    const float prob = m_boxes.probability(int(b));
+    if (!(prob > 0)) continue;
+    double t0 = 0, t1 = INFINITY;
+    for (int a = 0; a < 3; ++a) {
+      const double lo = m_boxLower[b][a], hi = m_boxUpper[b][a], o = p[a], d = wi[a];
+      if (d == 0) {
+        if (o < lo || o > hi) t1 = -1;
+        continue;
+      }
+      double ta = (lo - o) / d, tb = (hi - o) / d;
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    if (!(t1 > t0)) continue;
+    const Vec3f e = m_boxUpper[b] - m_boxLower[b];
+    const double volume = double(e.x) * e.y * e.z;
+    if (volume > 0) pdf += prob * (t1 * t1 * t1 - t0 * t0 * t0) / (3 * volume);
+  }
+  return float(pdf);
 }
 
 float Light::pdfArea(const Vec3f& p, const Vec3f& y, const Vec3f& ny) const {

@@ -16,6 +16,9 @@ struct LightSample {
   float pdf = 0;      // solid angle density; 1 for delta lights
   float distance = 0; // to the sampled point; infinity for distant lights
   bool delta = false;
+  // Iso-surface lights sample a direction only: the radiance is what a ray along wi hits
+  // first, if that is the light's surface (the caller traces it; L is not set).
+  bool traced = false;
 };
 
 // A piecewise-constant 1D distribution (for triangle areas and environment rows/columns).
@@ -37,12 +40,18 @@ class Distribution1D {
 
 class Light {
  public:
-  enum class Kind { Point, Spot, Directional, Environment, Area };
+  enum class Kind { Point, Spot, Directional, Environment, Area, IsoSurface };
 
   static Light fromDesc(const LightDesc& desc, const Texture* environmentImage);
   // Emissive triangles (world space) with their material; `uvs` may be empty.
   static Light area(std::vector<Vec3f> triangles, std::vector<Vec2f> uvs, const Material& material,
                     const std::vector<Texture>& textures);
+  // An emissive iso-surface (World surface `surface`), sampled by direction: a box is chosen
+  // by `weights`, a point uniformly inside it, and the direction towards that point; the
+  // boxes (world space) must hold the whole surface. `area`: an estimate of its area, for
+  // the light's power only.
+  static Light isoSurface(int surface, std::vector<Vec3f> lower, std::vector<Vec3f> upper,
+                          const std::vector<float>& weights, const Material& material, float area);
 
   Kind kind() const { return m_kind; }
   bool isDelta() const { return m_kind == Kind::Point || m_kind == Kind::Spot || m_kind == Kind::Directional; }
@@ -51,6 +60,13 @@ class Light {
   // area (the point `y` with normal `ny` that the ray reached).
   float pdfEnvironment(const Vec3f& wi) const;
   float pdfArea(const Vec3f& p, const Vec3f& y, const Vec3f& ny) const;
+  // Iso-surface lights: the solid-angle density of sample() choosing `wi` from `p`, whatever
+  // the ray along wi hits (the sum over the boxes it crosses).
+  float pdfIsoSurface(const Vec3f& p, const Vec3f& wi) const;
+  int surface() const { return m_surface; }
+  // Total emitted power (luminance; pbrt-v4's Light::Phi) for choosing lights by power.
+  // Distant lights count what falls on a disc of the scene's radius.
+  float power(float sceneRadius) const;
   // Radiance arriving at the scene along -dir, i.e. seen by a ray that escapes in direction dir.
   Vec3f environment(const Vec3f& dir) const;
   size_t triangleCount() const { return m_triangles.size() / 3; }
@@ -77,6 +93,11 @@ class Light {
   Distribution1D m_areas;
   const Material* m_material = nullptr;
   const std::vector<Texture>* m_textures = nullptr;
+  // Iso-surface light: its surface, boxes and their distribution (the material is above).
+  int m_surface = -1;
+  std::vector<Vec3f> m_boxLower, m_boxUpper;
+  Distribution1D m_boxes;
+  float m_area = 0;
 };
 
 }  // namespace iso

@@ -3,7 +3,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <stdexcept>
+#include <tuple>
 
 #include "volume/input_error.h"
 
@@ -88,11 +90,23 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
     for (RTCScene sub : m_subScenes) rtcCommitScene(sub);
     rtcCommitScene(m_scene);
     m_buildSeconds += secondsSince(commitStart);
-    if (m_camera.frameScene) {
-      RTCBounds b;
-      rtcGetSceneBounds(m_scene, &b);
-      if (b.lower_x <= b.upper_x) m_camera = frameBounds({b.lower_x, b.lower_y, b.lower_z}, {b.upper_x, b.upper_y, b.upper_z});
+    RTCBounds b;
+    rtcGetSceneBounds(m_scene, &b);
+    const bool bounded = b.lower_x <= b.upper_x;
+    const Vec3d lower{b.lower_x, b.lower_y, b.lower_z}, upper{b.upper_x, b.upper_y, b.upper_z};
+    if (m_camera.frameScene && bounded) m_camera = frameBounds(lower, upper);
+    // Lights are chosen by power; distant ones by what falls on the scene (its bounding
+    // sphere). Without any power (black lights) the choice is uniform.
+    const float radius = bounded ? float(0.5 * length(upper - lower)) : 1.f;
+    std::vector<float> powers;
+    double total = 0;
+    for (const Light& l : m_lights) {
+      const float p = l.power(radius);
+      powers.push_back(std::isfinite(p) && p > 0 ? p : 0.f);
+      total += powers.back();
     }
+    if (!(total > 0)) std::fill(powers.begin(), powers.end(), 1.f);
+    m_lightPick = Distribution1D(powers);
   } catch (...) {
     release();
     throw;
@@ -403,6 +417,9 @@ void World::buildLights(const SceneDesc& scene) {
     m_lights.push_back(Light::fromDesc(d, image));
   };
   for (const LightDesc& d : scene.lights) add(d);
+  for (size_t s = 0; s < m_surfaces.size(); ++s)
+    if (m_materials[m_surfaces[s].material].emits() && !m_surfaces[s].surface->activeBricks().empty())
+      addIsoSurfaceLight(int(s));
   int cameraIndex = 0;
   bool cameraFound = scene.camera.gltfCamera.empty();
   std::string cameraNames;
@@ -430,6 +447,74 @@ void World::buildLights(const SceneDesc& scene) {
     throw InputError(scene.path, "/camera/gltf_camera",
                      "no glTF camera '" + scene.camera.gltfCamera + "' (cameras: " +
                          (cameraNames.empty() ? "none" : cameraNames) + "; \"#N\" picks the N-th)");
+}
+
+// An emissive iso-surface as a light: its active bricks grouped into at most 64 boxes (bricks
+// of one group of g^3, g doubling until the groups are few enough), each weighted by the
+// surface cells it holds. Few boxes keep the pdf of a direction (a sum over all boxes the
+// ray crosses) cheap; tight boxes keep the sampled directions on the surface.
+void World::addIsoSurfaceLight(int index) {
+  constexpr size_t kMaxBoxes = 64;
+  SurfaceInfo& info = m_surfaces[size_t(index)];
+  const IsoSurface& surface = *info.surface;
+  const VolumeInfo& volume = m_volumes[size_t(info.volume)];
+  const std::vector<uint32_t>& active = surface.activeBricks();
+  std::map<std::tuple<int, int, int>, size_t> groupOf;
+  std::vector<Vec3d> lower, upper;
+  std::vector<float> weights;
+  for (int g = 1;; g *= 2) {
+    groupOf.clear();
+    lower.clear(), upper.clear(), weights.clear();
+    for (uint32_t i = 0; i < active.size(); ++i) {
+      const Vec3i c = volume.bricks->cellBegin(active[i]);
+      const auto key = std::make_tuple(c.x / (BrickGrid::kCells * g), c.y / (BrickGrid::kCells * g), c.z / (BrickGrid::kCells * g));
+      auto [it, added] = groupOf.emplace(key, lower.size());
+      float lo[3], hi[3];
+      surface.primitiveBounds(i, lo, hi);
+      if (added) {
+        lower.push_back({lo[0], lo[1], lo[2]});
+        upper.push_back({hi[0], hi[1], hi[2]});
+        weights.push_back(0);
+      }
+      Vec3d& l = lower[it->second];
+      Vec3d& u = upper[it->second];
+      l = min(l, Vec3d{lo[0], lo[1], lo[2]});
+      u = max(u, Vec3d{hi[0], hi[1], hi[2]});
+      weights[it->second] += float(surface.surfaceCells(i));
+    }
+    if (lower.size() <= kMaxBoxes) break;
+  }
+  // World-space boxes around the object-space ones (their 8 corners transformed).
+  const Transform& t = volume.transform;
+  std::vector<Vec3f> worldLower, worldUpper;
+  for (size_t b = 0; b < lower.size(); ++b) {
+    Vec3d lo{INFINITY, INFINITY, INFINITY}, hi = -lo;
+    for (int c = 0; c < 8; ++c) {
+      const Vec3d p = t.point({c & 1 ? upper[b].x : lower[b].x, c & 2 ? upper[b].y : lower[b].y,
+                               c & 4 ? upper[b].z : lower[b].z});
+      lo = min(lo, p);
+      hi = max(hi, p);
+    }
+    worldLower.push_back(Vec3f(lo));
+    worldUpper.push_back(Vec3f(hi));
+  }
+  // The area, roughly: about 0.6 of a cell face per cell the surface passes through (a plane
+  // through a cubic grid), scaled by the transform.
+  double cells = 0;
+  for (float w : weights) cells += w;
+  const Vec3d s = volume.grid->spacing();
+  const double face = (s.x * s.y + s.y * s.z + s.z * s.x) / 3;
+  const double area = 0.6 * cells * face * std::pow(std::fabs(t.determinant()), 2.0 / 3.0);
+  info.light = int(m_lights.size());
+  m_lights.push_back(Light::isoSurface(index, std::move(worldLower), std::move(worldUpper), weights,
+                                       m_materials[size_t(info.material)], float(area)));
+}
+
+int World::pickLight(float u, float& probability) const {
+  probability = 0;
+  if (m_lights.empty()) return -1;
+  float remapped;
+  return m_lightPick.sample(u, probability, remapped);
 }
 
 const World::GeometryRecord& World::recordOf(const RTCHit& hit) const {
@@ -680,7 +765,7 @@ Bsdf World::bsdf(const Hit& hit) const {
 Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   const Material& m = m_materials[hit.material];
   if (!m.emits()) return {0, 0, 0};
-  if (hit.light >= 0) return m_lights[hit.light].emitted(hit.triangle, hit.b1, hit.b2, wo);
+  if (hit.surface < 0 && hit.light >= 0) return m_lights[hit.light].emitted(hit.triangle, hit.b1, hit.b2, wo);
   // Emissive iso-surfaces: front side is out of the solid.
   if (!m.twoSided && dot(wo, hit.normal) <= 0) return {0, 0, 0};
   return m.emission;

@@ -46,6 +46,7 @@ struct SurfaceInfo {
   int material = 0;
   bool solidAbove = true;
   bool smoothNormals = true;
+  int light = -1;  // index into World::lights() when the surface emits
   std::unique_ptr<IsoSurface> surface;
 };
 
@@ -94,6 +95,12 @@ class World {
   const std::vector<Texture>& textures() const { return m_textures; }
   const std::vector<Light>& lights() const { return m_lights; }
   const std::vector<int>& environmentLights() const { return m_environmentLights; }
+  // Light selection by power (pbrt-v4's PowerLightSampler): a light index for u in [0, 1)
+  // with its probability, and the probability of a given light. -1 when there is no light.
+  int pickLight(float u, float& probability) const;
+  float lightProbability(int light) const { return m_lightPick.probability(light); }
+  // The light whose emission a hit shows (an emissive triangle or iso-surface), or -1.
+  int lightOf(const Hit& hit) const { return hit.surface >= 0 ? m_surfaces[hit.surface].light : hit.light; }
   const std::vector<std::string>& warnings() const { return m_warnings; }
   double loadSeconds() const { return m_loadSeconds; }
   double buildSeconds() const { return m_buildSeconds; }
@@ -119,6 +126,7 @@ class World {
   void loadMeshes(const SceneDesc& scene);
   void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector);
   void buildLights(const SceneDesc& scene);
+  void addIsoSurfaceLight(int surface);
   int materialFor(const SceneDesc& scene, const std::string& name);
   int gltfMaterial(size_t model, int index);
   int textureFor(size_t model, const GltfTextureRef& ref, bool srgb);
@@ -149,6 +157,7 @@ class World {
   std::vector<PendingAreaLight> m_pendingAreaLights;  // become the first lights
   std::vector<Light> m_lights;
   std::vector<int> m_environmentLights;
+  Distribution1D m_lightPick;
   std::vector<GeometryRecord> m_top;
   std::vector<std::vector<GeometryRecord>> m_instanceRecords;
   std::vector<std::string> m_warnings;

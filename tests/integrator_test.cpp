@@ -8,6 +8,7 @@
 #include "integrators/path.h"
 #include "renderer/render.h"
 #include "scene/world.h"
+#include "tests/test_util.h"
 
 namespace iso {
 namespace {
@@ -338,6 +339,102 @@ TEST(Sampling, ChiSquareOfLights) {
               return true;
             },
             [&](const Vec3f& w) { return uniform.pdfEnvironment(w); });
+}
+
+// Iso-surface lights sample directions towards points in boxes; their density, a sum over
+// the boxes a direction crosses, must be the one sampled: overlapping boxes of unequal weight,
+// seen from outside all of them and from inside one.
+TEST(Sampling, ChiSquareOfIsoSurfaceLights) {
+  Material lamp;
+  lamp.type = MaterialType::Emissive;
+  lamp.emission = {1, 1, 1};
+  const Light light = Light::isoSurface(0, {{1, -0.5f, -0.5f}, {1.5f, 0, -1}, {-1, 1, 0.2f}},
+                                        {{2, 0.5f, 0.5f}, {2.5f, 1.5f, 0.3f}, {-0.4f, 1.6f, 0.8f}}, {3, 1, 2}, lamp, 1);
+  for (const Vec3f p : {Vec3f{0, 0, 0}, Vec3f{1.2f, 0.1f, 0}}) {
+    chiSquare("iso-surface light from (" + std::to_string(p.x) + ", " + std::to_string(p.y) + ")",
+              [&](float a, float b, float c, Vec3f& w) {
+                LightSample s;
+                if (!light.sample(p, a, b, c, s)) return false;
+                EXPECT_TRUE(s.traced);
+                EXPECT_NEAR(s.pdf, light.pdfIsoSurface(p, s.wi), 1e-3f * s.pdf);
+                w = s.wi;
+                return true;
+              },
+              [&](const Vec3f& w) { return light.pdfIsoSurface(p, w); });
+  }
+}
+
+// Lights are chosen in proportion to their power (pbrt-v4's power light sampler): a point light
+// 4 pi I, a spot 2 pi I (1 - (cos inner + cos outer) / 2), a directional light pi r^2 E over
+// the scene's bounding sphere; black lights are never chosen.
+TEST(Integrators, LightsAreChosenByPower) {
+  const SceneDesc s = parseSceneText(R"({"meshes": [{"shape": "quad", "transform": {"scale": 2}}],
+    "lights": [{"type": "point", "position": [0, 1, 0], "intensity": 1},
+               {"type": "point", "position": [0, 1, 0], "intensity": 3},
+               {"type": "spot", "position": [0, 1, 0], "direction": [0, -1, 0], "intensity": 2, "inner_angle": 60, "outer_angle": 60},
+               {"type": "directional", "direction": [0, -1, 0], "irradiance": 0.5},
+               {"type": "point", "position": [0, 1, 0], "intensity": 0}]})", "/t/lights.json");
+  World world(s, IntersectorSpec{});
+  ASSERT_EQ(world.lights().size(), 5u);
+  const double r = std::sqrt(2.0) * 2;  // the quad [-2, 2]^2 at y = 0: half its diagonal
+  const double powers[5] = {4 * M_PI, 12 * M_PI, 2 * M_PI * 2 * 0.5, M_PI * r * r * 0.5, 0};
+  double total = 0;
+  for (double p : powers) total += p;
+  for (int i = 0; i < 5; ++i) EXPECT_NEAR(world.lightProbability(i), powers[i] / total, 1e-4) << "light " << i;
+  float probability;
+  for (float u : {0.f, 0.3f, 0.7f, 0.99999f}) {
+    const int picked = world.pickLight(u, probability);
+    EXPECT_NE(picked, 4);
+    EXPECT_FLOAT_EQ(probability, world.lightProbability(picked));
+  }
+}
+
+// A closed room lit only by an emissive iso-surface sphere, against the same room lit by a
+// sphere of emissive triangles: the means agree (both estimators are unbiased) and, with the
+// iso-surface sampled as a light, its noise is no worse than 1.3 times the triangles'
+// (issue 12: by BSDF sampling alone it was 3.7 times, with 59% black pixels at 16 spp).
+// Noise = the RMS difference of two renders with different seeds, over sqrt(2).
+TEST(Integrators, IsoSurfaceLampMatchesTheTriangleLamp) {
+  auto room = [](const std::string& lamp) {
+    return parseSceneText(R"({"camera": {"position": [0, 1, 2.8], "look_at": [0, 0.9, 0], "fov": 50},
+      "integrator": {"type": "path", "max_depth": 4},
+      "meshes": [{"file": ")" + test::dataPath("meshes/Box.glb") + R"(", "transform": {"scale": [4, 2, 6], "translate": [0, 1, 0]},
+                  "material": "wall"})" + lamp + R"(],
+      "materials": {"wall": {"type": "diffuse", "color": 0.7}, "lamp": {"type": "emissive", "radiance": 8}}})", "/t/room.json");
+  };
+  SceneDesc iso = room(R"(], "volumes": [{"procedural": {"field": "sphere", "resolution": [32, 32, 32]},
+      "transform": {"scale": 0.6, "translate": [0.4, 1.3, -0.8]},
+      "isosurfaces": [{"value": 0.5, "inside": "below", "material": "lamp"}]})");
+  SceneDesc tri = room(R"(, {"shape": "sphere", "transform": {"scale": 0.3, "translate": [0.4, 1.3, -0.8]}, "material": "lamp"})");
+  struct Result { double mean = 0, noise = 0; };
+  auto measure = [](const SceneDesc& scene) {
+    World world(scene, scene.settings.intersector);
+    EXPECT_EQ(world.lights().size(), 1u);
+    const int w = 64, h = 48;
+    Camera camera(world.camera(), w, h);
+    auto integrator = makeIntegrator("path", world, scene.settings);
+    Film a(w, h), b(w, h);
+    RenderOptions options;
+    options.spp = 16;
+    options.seed = 1;
+    renderFrame(camera, *integrator, options, a);
+    options.seed = 2;
+    renderFrame(camera, *integrator, options, b);
+    Result r;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        r.mean += 0.5 * (a.at(x, y).y + b.at(x, y).y);
+        r.noise += double(a.at(x, y).y - b.at(x, y).y) * (a.at(x, y).y - b.at(x, y).y);
+      }
+    r.mean /= w * h;
+    r.noise = std::sqrt(r.noise / (w * h) / 2);
+    return r;
+  };
+  const Result i = measure(iso), t = measure(tri);
+  std::printf("iso-surface lamp: mean %.5f, noise %.5f; triangle lamp: mean %.5f, noise %.5f (ratio %.2f)\n", i.mean,
+              i.noise, t.mean, t.noise, i.noise / t.noise);
+  EXPECT_NEAR(i.mean, t.mean, 0.01 * t.mean);
+  EXPECT_LT(i.noise, 1.3 * t.noise);
 }
 
 // Indirect rays leave an iso-surface without re-hitting it: from points on the inside of the

@@ -64,6 +64,7 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
       const Vec3i c0 = bricks.cellBegin(m_active[i]), c1 = bricks.cellEnd(m_active[i]);
       CellClasses& classes = m_cellClasses[i];
       Vec3i lo = c1, hi = c0;
+      uint32_t surfaceCells = 0;
       for (int z = c0.z; z < c1.z; ++z)
         for (int y = c0.y; y < c1.y; ++y)
           for (int x = c0.x; x < c1.x; ++x) {
@@ -78,12 +79,13 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
             if (above) classes.positive[z - c0.z] |= bit;
             if (below) classes.negative[z - c0.z] |= bit;
             if (!above && !below) {
+              ++surfaceCells;
               lo = min(lo, Vec3i{x, y, z});
               hi = max(hi, Vec3i{x + 1, y + 1, z + 1});
             }
           }
       if (!(lo.x < hi.x)) lo = c0, hi = c1;  // cannot happen for an active brick; stay safe
-      m_primitives[i] = {lo, hi, c0};
+      m_primitives[i] = {lo, hi, c0, surfaceCells};
     });
   });
   for (size_t i = 0; i < m_active.size(); ++i) m_primitiveOf[m_active[i]] = int32_t(i);

@@ -95,6 +95,9 @@ class IsoSurface {
   // World-space bounds of primitive `primitive` (the tight box of activeBricks()[primitive]),
   // rounded outwards.
   void primitiveBounds(uint32_t primitive, float lower[3], float upper[3]) const;
+  // Cells of primitive `primitive` that are not uniform: each holds a piece of the surface
+  // (light sampling weighs the bricks of an emissive surface by it).
+  uint32_t surfaceCells(uint32_t primitive) const { return m_primitives[primitive].surfaceCells; }
   // Memory of the primitives' records and class tables (Embree's BVH comes on top).
   size_t bytes() const {
     return m_primitives.size() * (sizeof(Primitive) + sizeof(CellClasses)) + m_primitiveOf.size() * sizeof(int32_t);
@@ -115,6 +118,7 @@ class IsoSurface {
   struct Primitive {
     Vec3i lo, hi;  // tight box: cells [lo, hi)
     Vec3i brickOrigin;
+    uint32_t surfaceCells = 0;
     bool contains(const Vec3i& c) const {
       return c.x >= lo.x && c.y >= lo.y && c.z >= lo.z && c.x < hi.x && c.y < hi.y && c.z < hi.z;
     }
