@@ -64,9 +64,10 @@ std::unique_ptr<Integrator> makeIntegrator(const std::string& name, const World&
   if (name == "normals") return std::make_unique<NormalsIntegrator>(world);
   if (name == "eyelight") return std::make_unique<EyelightIntegrator>(world);
   if (name == "ao") return std::make_unique<AmbientOcclusionIntegrator>(world, float(settings.aoDistance));
-  if (name == "direct") return std::make_unique<PathIntegrator>(world, 1, false);
-  if (name == "path") return std::make_unique<PathIntegrator>(world, settings.maxDepth, false);
-  if (name == "compare") return std::make_unique<PathIntegrator>(world, settings.maxDepth, true);
+  const float clamp = float(settings.clampIndirect);
+  if (name == "direct") return std::make_unique<PathIntegrator>(world, 1, false, clamp);
+  if (name == "path") return std::make_unique<PathIntegrator>(world, settings.maxDepth, false, clamp);
+  if (name == "compare") return std::make_unique<PathIntegrator>(world, settings.maxDepth, true, clamp);
   throw std::logic_error("makeIntegrator: unknown integrator '" + name + "'");
 }
 

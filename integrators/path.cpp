@@ -110,6 +110,14 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
       beta = beta / (1 - q);
     }
   }
+  if (m_clamp > 0) {
+    // Fireflies are rare paths of huge weight, almost always indirect (a diffuse bounce onto
+    // a glossy reflection of a small light): clipping the indirect part removes them and
+    // leaves direct light exact.
+    const Vec3f indirect = L - direct;
+    const float peak = maxComponent(indirect);
+    if (peak > m_clamp) L = direct + indirect * (m_clamp / peak);
+  }
   out.L = L;
   out.direct = direct;
 }

@@ -8,8 +8,10 @@ namespace iso {
 class PathIntegrator final : public Integrator {
  public:
   // `splitDirect`: also return the direct part (paths of depth 1) in SampleResult::direct.
-  PathIntegrator(const World& world, int maxDepth, bool splitDirect)
-      : Integrator(world), m_maxDepth(maxDepth), m_split(splitDirect) {}
+  // `clampIndirect` > 0: the indirect part of each sample (everything but paths of depth 1) is
+  // scaled down to at most that in its largest component (Cycles' indirect clamp; biased).
+  PathIntegrator(const World& world, int maxDepth, bool splitDirect, float clampIndirect = 0)
+      : Integrator(world), m_maxDepth(maxDepth), m_split(splitDirect), m_clamp(clampIndirect) {}
   void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override;
   bool splitsDirect() const override { return m_split; }
 
@@ -22,6 +24,7 @@ class PathIntegrator final : public Integrator {
  private:
   int m_maxDepth;
   bool m_split;
+  float m_clamp;
 };
 
 }  // namespace iso

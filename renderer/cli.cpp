@@ -29,7 +29,7 @@ struct RenderFlags {
   int spp = 0, threads = -1, maxDepth = 0;
   long long seed = -1;
   bool quiet = false, alpha = false;
-  std::optional<double> exposure;
+  std::optional<double> exposure, clamp, adaptive;
 };
 
 // --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
@@ -81,6 +81,15 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
   }
   if (f.threads >= 0) s.threads = f.threads;
   if (f.seed >= 0) s.seed = uint64_t(f.seed);
+  if (f.clamp) {
+    if (!(*f.clamp >= 0 && *f.clamp <= 1e30)) throw InputError("--clamp", "", "expected a radiance >= 0 (0: off)");
+    s.clampIndirect = *f.clamp;
+  }
+  if (f.adaptive) {
+    if (!(*f.adaptive >= 0 && *f.adaptive <= 1))
+      throw InputError("--adaptive", "", "expected a noise threshold in [0, 1], e.g. 0.02 (0: off)");
+    s.noiseThreshold = *f.adaptive;
+  }
 }
 
 std::vector<std::string> parseAovs(const std::string& list, const std::string& output) {
@@ -90,8 +99,8 @@ std::vector<std::string> parseAovs(const std::string& list, const std::string& o
   while (start <= list.size()) {
     const size_t comma = std::min(list.find(',', start), list.size());
     const std::string name = list.substr(start, comma - start);
-    if (name != "albedo" && name != "normal" && name != "depth" && name != "variance")
-      throw InputError("--aov", "", "unknown layer '" + name + "' (known: albedo, normal, depth, variance)");
+    if (name != "albedo" && name != "normal" && name != "depth" && name != "variance" && name != "samples")
+      throw InputError("--aov", "", "unknown layer '" + name + "' (known: albedo, normal, depth, variance, samples)");
     if (std::find(aovs.begin(), aovs.end(), name) == aovs.end()) aovs.push_back(name);
     start = comma + 1;
   }
@@ -146,13 +155,15 @@ void writeStats(const std::string& path, const SceneDesc& scene, const World& wo
   if (!f) throw InputError(path, "", "cannot write statistics");
   std::fprintf(f,
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
+               "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
                "  \"max_depth\": %d,\n"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
                "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu}\n}\n",
-               jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.interrupted ? "true" : "false",
+               jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
+               jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
                world.loadSeconds(), world.buildSeconds(), r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
@@ -180,6 +191,7 @@ int render(const RenderFlags& flags) {
   options.threads = s.threads;
   options.aovs = parseAovs(flags.aov, output);
   options.alpha = flags.alpha;
+  options.noiseThreshold = s.noiseThreshold;
   options.progress = !flags.quiet && isatty(2);
   if (!flags.stats.empty()) {
     const std::filesystem::path sp(flags.stats);
@@ -207,6 +219,12 @@ int render(const RenderFlags& flags) {
       {"isotrace:max_depth", std::to_string(s.maxDepth)},
       {"isotrace:intersector", intersectorName(s.intersector)},
       {"isotrace:seed", std::to_string(s.seed)}};
+  if (s.noiseThreshold > 0) {
+    metadata["isotrace:noise_threshold"] = jsonNumber(s.noiseThreshold);
+    metadata["isotrace:spp_mean"] = jsonNumber(result.meanSamples);
+    metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
+  }
+  if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
   if (result.interrupted) metadata["isotrace:interrupted"] = "1";
   if (imageFormatFor(output) != ImageFormat::Exr) {
     metadata["isotrace:exposure"] = jsonNumber(display.exposure);
@@ -236,12 +254,19 @@ int render(const RenderFlags& flags) {
   if (!flags.stats.empty()) writeStats(flags.stats, scene, world, result, threads, total);
   if (!flags.quiet) {
     const RayCounters& c = result.counters;
+    char buf[96];
+    if (s.noiseThreshold > 0)
+      std::snprintf(buf, sizeof buf, "%d-%d (mean %.1f, adaptive %g)", result.minSamples, result.maxSamples,
+                    result.meanSamples, s.noiseThreshold);
+    else
+      std::snprintf(buf, sizeof buf, "%d", result.minSamples);
+    const std::string sppSummary = buf;
     const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d, %d spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: %dx%d, %s spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
                  "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
                  "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
-                 s.width, s.height, result.minSamples, s.integrator.c_str(), intersectorName(s.intersector).c_str(),
+                 s.width, s.height, sppSummary.c_str(), s.integrator.c_str(), intersectorName(s.intersector).c_str(),
                  threads, world.loadSeconds(), world.buildSeconds(), result.seconds, total,
                  (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
                  result.seconds > 0 ? rays / result.seconds * 1e-6 : 0.0,
@@ -580,7 +605,7 @@ int runCommandLine(int argc, char** argv) {
   renderCmd->add_option("--spp", flags.spp, "samples per pixel");
   renderCmd->add_option("--integrator", flags.integrator, std::string("integrator: ") + integratorList());
   renderCmd->add_option("--max-depth", flags.maxDepth, "longest path for direct/path/compare (1: direct light only)");
-  renderCmd->add_option("--aov", flags.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance");
+  renderCmd->add_option("--aov", flags.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance, samples");
   renderCmd->add_option("--stats", flags.stats, "write times, ray counts and counters as JSON to this file");
   renderCmd->add_option("--intersector", flags.intersector, std::string("intersector: ") + intersectorList());
   renderCmd->add_option("--resolution", flags.resolution, "image size WIDTHxHEIGHT");
@@ -590,6 +615,8 @@ int runCommandLine(int argc, char** argv) {
   renderCmd->add_option("--exposure", flags.exposure, "PNG/JPEG: scale radiance by 2^EV before tone mapping (default 0)");
   renderCmd->add_option("--tonemap", flags.tonemap, "PNG/JPEG: clamp (default), aces or filmic");
   renderCmd->add_flag("--alpha", flags.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
+  renderCmd->add_option("--clamp", flags.clamp, "clip each sample's indirect radiance to X (biased; 0: off, the default)");
+  renderCmd->add_option("--adaptive", flags.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");
   std::string infoScene;
   CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
   infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();

@@ -22,9 +22,11 @@ volatile std::sig_atomic_t g_stop = 0;
 // What a pixel has gathered so far; sums in double, in sample order.
 struct PixelSums {
   Vec3d L, L2, direct, albedo, normal;
+  double luminance = 0, luminance2 = 0;
   double depth = 0;
   int depthHits = 0;  // samples whose camera ray hit something
   int samples = 0;
+  bool converged = false;  // adaptive sampling: takes no more samples
 };
 
 double seconds(std::chrono::steady_clock::time_point since) {
@@ -78,6 +80,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         PixelSums& p = sums[size_t(y) * w + x];
+        if (p.converged) continue;
         for (int s = s0; s < s1; ++s) {
           Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
           const float jx = sampler.next(), jy = sampler.next();
@@ -87,6 +90,9 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
           const Vec3d L = options.alpha && background ? Vec3d{0, 0, 0} : Vec3d(r.L);
           p.L += L;
           p.L2 += L * L;
+          const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
+          p.luminance += lum;
+          p.luminance2 += lum * lum;
           p.direct += Vec3d(r.direct);
           p.albedo += Vec3d(r.albedo);
           p.normal += Vec3d(r.normal);
@@ -117,6 +123,22 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     });
     passStart = s1;
     if (pass >= 1) passSize = std::min(passSize * 2, 16);
+    if (options.noiseThreshold > 0 && !stopRequested()) {
+      const int minSamples = std::min(options.spp, RenderOptions::kAdaptiveMinSamples);
+      bool open = false;
+      for (PixelSums& p : sums) {
+        if (p.converged || p.samples < minSamples) {
+          open = open || !p.converged;
+          continue;
+        }
+        const double n = p.samples, mean = p.luminance / n;
+        const double variance = n > 1 ? std::max(0.0, p.luminance2 / n - mean * mean) * n / (n - 1) : 0;
+        p.converged = std::sqrt(variance / n) <= options.noiseThreshold * std::max(mean, 0.01);
+        if (p.converged) done += uint64_t(options.spp - p.samples);  // the progress bar's work
+        open = open || !p.converged;
+      }
+      if (!open) break;
+    }
   }
   result.seconds = seconds(start);
   if (options.progress && printed) {
@@ -124,8 +146,14 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     std::fprintf(stderr, "\n");
   }
   result.minSamples = options.spp;
-  for (const PixelSums& p : sums) result.minSamples = std::min(result.minSamples, p.samples);
-  result.interrupted = stopRequested() && result.minSamples < options.spp;
+  double totalSamples = 0;
+  for (const PixelSums& p : sums) {
+    result.minSamples = std::min(result.minSamples, p.samples);
+    result.maxSamples = std::max(result.maxSamples, p.samples);
+    totalSamples += p.samples;
+    result.interrupted = result.interrupted || (stopRequested() && !p.converged && p.samples < options.spp);
+  }
+  result.meanSamples = sums.empty() ? 0 : totalSamples / double(sums.size());
   for (const RayCounters& c : counters) result.counters.add(c);
 
   // Averages; what a pixel lacks (no sample yet, or no hit for depth) is 0 / infinity.
@@ -136,6 +164,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   Film::Layer* normal = want("normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
   Film::Layer* depth = want("depth") ? &film.addLayer("depth", {"Z"}) : nullptr;
   Film::Layer* variance = want("variance") ? &film.addLayer("variance", {"R", "G", "B"}) : nullptr;
+  Film::Layer* samples = want("samples") ? &film.addLayer("samples", {"N"}) : nullptr;
   if (options.alpha) film.alpha().assign(size_t(w) * h, 0.f);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
@@ -155,6 +184,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
       }
       if (depth) depth->data[i] = p.depthHits ? float(p.depth / p.depthHits) : INFINITY;
       if (options.alpha) film.alpha()[i] = float(p.depthHits / n);
+      if (samples) samples->data[i] = float(p.samples);
     }
   return result;
 }

@@ -19,8 +19,16 @@ struct RenderOptions {
   uint64_t seed = 0;
   int threads = 0;  // 0: all cores
   bool progress = false;  // a progress bar on stderr
-  // Extra layers: any of "albedo", "normal", "depth", "variance" (of the pixel mean).
+  // Extra layers: any of "albedo", "normal", "depth", "variance" (of the pixel mean),
+  // "samples" (how many each pixel took).
   std::vector<std::string> aovs;
+  // Adaptive sampling (0: off): after each pass, a pixel with at least kAdaptiveMinSamples
+  // (or spp, if fewer) stops once the standard error of its mean luminance is at most
+  // noiseThreshold * max(mean luminance, 0.01) (the floor keeps near-black pixels from
+  // sampling forever). Decided only at pass boundaries, from the pixel's own samples: still
+  // bit-identical for any thread count.
+  double noiseThreshold = 0;
+  static constexpr int kAdaptiveMinSamples = 16;
   // Coverage in Film::alpha(); samples whose camera ray hits nothing add no radiance (the
   // background is transparent, though it still lights the scene).
   bool alpha = false;
@@ -30,7 +38,9 @@ struct RenderResult {
   RayCounters counters;
   double seconds = 0;
   bool interrupted = false;
-  int minSamples = 0;  // samples in the pixel that has fewest (spp unless interrupted)
+  int minSamples = 0;  // samples in the pixel that has fewest (spp unless interrupted or adaptive)
+  int maxSamples = 0;
+  double meanSamples = 0;
 };
 
 // The main layer of `film` gets radiance; `direct` (optional, same size) the direct part for

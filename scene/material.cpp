@@ -83,11 +83,93 @@ Vec3f sampleVisibleNormal(const Vec3f& wo, float alpha, float u0, float u1) {
   const Vec3f nh = t1 * p1 + t2 * p2 + vh * std::sqrt(std::max(0.f, 1 - p1 * p1 - p2 * p2));
   return normalize(Vec3f{alpha * nh.x, alpha * nh.y, std::max(1e-7f, nh.z)});
 }
+
+namespace {
+// E(mu, roughness) on a 32 x 32 grid (mu = cos theta and roughness each from 0 to 1), computed
+// once on first use: per entry 16 x 16 stratified visible-normal samples, whose weight for a
+// white lobe is G2(wo, wi) / G1(wo) (Heitz 2018). Eavg = 2 * integral of E(mu) mu dmu.
+struct AlbedoTable {
+  static constexpr int kSize = 32;
+  float e[kSize][kSize];  // [roughness][mu]
+  float average[kSize];
+  AlbedoTable() {
+    for (int r = 0; r < kSize; ++r) {
+      const float roughness = float(r) / (kSize - 1);
+      const float alpha = std::max(roughness * roughness, kMinAlpha);
+      for (int m = 0; m < kSize; ++m) {
+        const float mu = std::max(float(m) / (kSize - 1), 1e-3f);
+        const Vec3f wo{std::sqrt(1 - mu * mu), 0, mu};
+        const float g1 = 1 / (1 + lambda(wo, alpha));
+        double sum = 0;
+        constexpr int n = 16;
+        for (int i = 0; i < n; ++i)
+          for (int j = 0; j < n; ++j) {
+            const Vec3f h = sampleVisibleNormal(wo, alpha, (i + 0.5f) / n, (j + 0.5f) / n);
+            const Vec3f wi = reflect(wo, h);
+            if (wi.z <= 0) continue;
+            sum += (1 / (1 + lambda(wo, alpha) + lambda(wi, alpha))) / g1;
+          }
+        e[r][m] = float(std::min(1.0, sum / (n * n)));
+      }
+      double avg = 0;  // trapezoid rule over mu
+      for (int m = 0; m + 1 < kSize; ++m) {
+        const double m0 = double(m) / (kSize - 1), m1 = double(m + 1) / (kSize - 1);
+        avg += (e[r][m] * m0 + e[r][m + 1] * m1) * (m1 - m0);
+      }
+      average[r] = float(std::min(avg, 1.0));
+    }
+  }
+  static const AlbedoTable& get() {
+    static const AlbedoTable table;
+    return table;
+  }
+};
+}  // namespace
+
+float albedo(float cosTheta, float roughness) {
+  const AlbedoTable& t = AlbedoTable::get();
+  const float x = std::clamp(cosTheta, 0.f, 1.f) * (AlbedoTable::kSize - 1);
+  const float y = std::clamp(roughness, 0.f, 1.f) * (AlbedoTable::kSize - 1);
+  const int x0 = std::min(int(x), AlbedoTable::kSize - 2), y0 = std::min(int(y), AlbedoTable::kSize - 2);
+  const float fx = x - x0, fy = y - y0;
+  return (t.e[y0][x0] * (1 - fx) + t.e[y0][x0 + 1] * fx) * (1 - fy) +
+         (t.e[y0 + 1][x0] * (1 - fx) + t.e[y0 + 1][x0 + 1] * fx) * fy;
+}
+
+float averageAlbedo(float roughness) {
+  const AlbedoTable& t = AlbedoTable::get();
+  const float y = std::clamp(roughness, 0.f, 1.f) * (AlbedoTable::kSize - 1);
+  const int y0 = std::min(int(y), AlbedoTable::kSize - 2);
+  const float fy = y - y0;
+  return t.average[y0] * (1 - fy) + t.average[y0 + 1] * fy;
+}
+
+Vec3f multipleScatteringTint(const Vec3f& f0, float roughness) {
+  const float eAvg = averageAlbedo(roughness);
+  const Vec3f fAvg = f0 + (Vec3f{1, 1, 1} - f0) * (1.f / 21);
+  Vec3f out;
+  // A white lobe (Favg = 1) gives 1: it returns exactly the 1 - E(mu_o) single scattering lost.
+  for (int c = 0; c < 3; ++c) out[c] = fAvg[c] * fAvg[c] * eAvg / (1 - fAvg[c] * (1 - eAvg));
+  return out;
+}
+
 }  // namespace ggx
+
+Vec3f Bsdf::multipleScattering(const Vec3f& wo, const Vec3f& wi, const Vec3f& f0) const {
+  const float eAvg = ggx::averageAlbedo(m_roughness);
+  if (!(eAvg < 1)) return {0, 0, 0};
+  const float lobe = (1 - ggx::albedo(wo.z, m_roughness)) * (1 - ggx::albedo(wi.z, m_roughness)) / (kPi * (1 - eAvg));
+  return ggx::multipleScatteringTint(f0, m_roughness) * lobe;
+}
+
+float Bsdf::multipleScatteringProbability(const Vec3f& wo) const {
+  return std::clamp(1 - ggx::albedo(std::fabs(wo.z), m_roughness), 0.f, 0.9f);
+}
 
 Bsdf::Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior)
     : m_type(type), m_frame(frame), m_color(color), m_metallic(metallic), m_eta(ior) {
   m_alpha = std::max(roughness * roughness, kMinAlpha);
+  m_roughness = std::sqrt(m_alpha);
   m_delta = type == MaterialType::Dielectric || (type == MaterialType::Conductor && roughness * roughness < kMinAlpha);
 }
 
@@ -123,12 +205,13 @@ Vec3f Bsdf::fLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
   const Vec3f h = normalize(wo + wi);
   const float G = 1 / (1 + ggx::lambda(wo, m_alpha) + ggx::lambda(wi, m_alpha));
   const float spec = ggx::D(h, m_alpha) * G / (4 * wo.z * wi.z);
-  if (m_type == MaterialType::Conductor) return schlick(m_color, dot(wi, h)) * spec;
-  // glTF 2.0 Appendix B: mix(dielectric_brdf, metal_brdf, metallic) with Schlick Fresnel.
+  if (m_type == MaterialType::Conductor) return schlick(m_color, dot(wi, h)) * spec + multipleScattering(wo, wi, m_color);
+  // glTF 2.0 Appendix B: mix(dielectric_brdf, metal_brdf, metallic) with Schlick Fresnel,
+  // the specular layer with its multiple scattering.
   const Vec3f f0 = Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
   const Vec3f F = schlick(f0, dot(wi, h));
   const Vec3f diffuse = (Vec3f{1, 1, 1} - F) * m_color * ((1 - m_metallic) / kPi);
-  return diffuse + F * spec;
+  return diffuse + F * spec + multipleScattering(wo, wi, f0);
 }
 
 float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
@@ -141,7 +224,10 @@ float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
   const Vec3f h = normalize(wo + wi);
   const float pdfH = ggx::D(h, m_alpha) / (1 + ggx::lambda(wo, m_alpha)) * std::max(0.f, dot(wo, h)) / wo.z;
   const float spec = pdfH / (4 * dot(wo, h));
-  if (m_type == MaterialType::Conductor) return spec;
+  if (m_type == MaterialType::Conductor) {
+    const float q = multipleScatteringProbability(wo);
+    return (1 - q) * spec + q * cosine;
+  }
   const float p = specularProbability(wo);
   return p * spec + (1 - p) * cosine;
 }
@@ -186,7 +272,8 @@ bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSamp
   if (m_type == MaterialType::Diffuse) {
     wi = sampleCosineHemisphere(u1, u2);
   } else {
-    const float p = m_type == MaterialType::Conductor ? 1.f : specularProbability(wo);
+    // Conductors send a share of samples to the multiple-scattering lobe (cosine-distributed).
+    const float p = m_type == MaterialType::Conductor ? 1 - multipleScatteringProbability(wo) : specularProbability(wo);
     if (u0 < p) {
       wi = reflect(wo, ggx::sampleVisibleNormal(wo, m_alpha, u1, u2));
       if (wi.z <= 0) return false;

@@ -66,11 +66,16 @@ class Bsdf {
 
  private:
   float specularProbability(const Vec3f& wo) const;
+  // The multiple-scattering lobe of the GGX layer for Fresnel f0 (wo, wi in the upper
+  // hemisphere); the share of conductor samples drawn from it.
+  Vec3f multipleScattering(const Vec3f& wo, const Vec3f& wi, const Vec3f& f0) const;
+  float multipleScatteringProbability(const Vec3f& wo) const;
 
   MaterialType m_type = MaterialType::Diffuse;
   Frame m_frame;
   Vec3f m_color{0.8f, 0.8f, 0.8f};
   float m_metallic = 0, m_alpha = 0, m_eta = 1.5f;
+  float m_roughness = 0;  // sqrt(m_alpha): the energy tables' parameter
   bool m_delta = false;
 };
 
@@ -80,6 +85,16 @@ namespace ggx {
 float D(const Vec3f& h, float alpha);
 float lambda(const Vec3f& w, float alpha);
 Vec3f sampleVisibleNormal(const Vec3f& wo, float alpha, float u0, float u1);
+// Multiple scattering (Kulla & Conty 2017, "Revisiting Physically Based Shading at
+// Imageworks"): single-scattering GGX loses the light that bounces between microfacets (69%
+// of it at grazing angles for roughness 1). E(mu, roughness) is the single-scattering albedo
+// of a white lobe, Eavg its cosine-weighted mean; the lost energy returns as a diffuse-like
+// lobe (1 - E(mu_o)) (1 - E(mu_i)) / (pi (1 - Eavg)), tinted by Fms below.
+float albedo(float cosTheta, float roughness);
+float averageAlbedo(float roughness);
+// The colour of the returned energy for Schlick Fresnel with reflectance f0: the average
+// Fresnel Favg = f0 + (1 - f0) / 21; Fms = Favg^2 Eavg / (1 - Favg (1 - Eavg)), 1 when white.
+Vec3f multipleScatteringTint(const Vec3f& f0, float roughness);
 }  // namespace ggx
 
 // Exact Fresnel reflectance of a smooth dielectric; cosI > 0 on the side of the normal.

@@ -96,6 +96,12 @@ struct RenderSettings {
   IntersectorSpec intersector;
   uint64_t seed = 0;
   int threads = 0;  // 0: all cores
+  // Cycles' indirect clamp: a sample's indirect radiance is scaled down to at most this in
+  // its largest component (0: off; it biases, darkening what it clips).
+  double clampIndirect = 0;
+  // Adaptive sampling: a pixel stops once the standard error of its mean luminance is at most
+  // this share of the mean (0: off; every pixel takes spp).
+  double noiseThreshold = 0;
 };
 
 struct SceneDesc {

@@ -312,6 +312,8 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     scene.settings.maxDepth = in.integer("max_depth", scene.settings.maxDepth, 1, 1000);
     scene.settings.aoDistance = in.number("ao_distance", scene.settings.aoDistance, 1e-30, 1e30);
     scene.settings.seed = uint64_t(in.integer("seed", 0, 0, 1 << 30));
+    scene.settings.clampIndirect = in.number("clamp", 0, 0, 1e30);
+    scene.settings.noiseThreshold = in.number("noise_threshold", 0, 0, 1);
     in.finish();
   }
   if (const Json* j = r.get("intersector")) {

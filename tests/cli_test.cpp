@@ -282,7 +282,8 @@ std::vector<float> readExr(const std::string& path, std::vector<std::string>* ch
   in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data());
   if (channels) *channels = spec.channelnames;
   if (metadata)
-    for (const char* key : {"isotrace:spp", "isotrace:interrupted", "isotrace:integrator"})
+    for (const char* key : {"isotrace:spp", "isotrace:interrupted", "isotrace:integrator", "isotrace:spp_mean",
+                            "isotrace:spp_max", "isotrace:clamp"})
       if (spec.find_attribute(key)) (*metadata)[key] = spec.get_string_attribute(key);
   return data;
 }
@@ -306,6 +307,73 @@ TEST(Cli, CompareWritesDirectGlobalAndIndirect) {
     sumIndirect += indirect[i];
   }
   EXPECT_GT(sumIndirect, 0);  // the floor lights the ball and the ball the floor
+}
+
+// --clamp clips each sample's indirect part only: the direct image is bit for bit the same,
+// the indirect image never exceeds the clamp, and without the clamp it does somewhere.
+TEST(Cli, ClampLimitsTheIndirectPartOnly) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const std::string base = "render " + dir + "/m.json --integrator compare --spp 8 --quiet ";
+  ASSERT_EQ(runIsotrace(base + "-o " + dir + "/free.exr").status, 0);
+  const auto r = runIsotrace(base + "--clamp 0.05 -o " + dir + "/clamped.exr");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::map<std::string, std::string> meta;
+  const auto direct = readExr(dir + "/clamped.direct.exr"), freeDirect = readExr(dir + "/free.direct.exr");
+  const auto indirect = readExr(dir + "/clamped.indirect.exr", nullptr, &meta), freeIndirect = readExr(dir + "/free.indirect.exr");
+  ASSERT_EQ(direct.size(), freeDirect.size());
+  EXPECT_EQ(direct, freeDirect);
+  EXPECT_EQ(meta["isotrace:clamp"], "0.05");
+  float peak = 0, freePeak = 0;
+  for (size_t i = 0; i < indirect.size(); ++i) {
+    peak = std::max(peak, indirect[i]);
+    freePeak = std::max(freePeak, freeIndirect[i]);
+  }
+  EXPECT_LE(peak, 0.05f * (1 + 1e-5f));
+  EXPECT_GT(freePeak, 0.05f);
+  EXPECT_EQ(runIsotrace(base + "--clamp -1 -o " + dir + "/x.exr").status, 2);
+}
+
+// --adaptive: black sky pixels stop at the minimum of 16 samples, noisy pixels take more, none
+// more than --spp; what each took is in the "samples" layer, the metadata and the stats; the
+// image does not depend on the thread count.
+TEST(Cli, AdaptiveSamplingStopsConvergedPixels) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"camera": {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]}, "film": {"width": 32, "height": 24},
+    "meshes": [{"shape": "quad", "transform": {"scale": 1.5}, "material": "floor"}],
+    "materials": {"floor": {"type": "diffuse", "color": 0.7}},
+    "lights": [{"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "intensity": 5, "outer_angle": 50}]})");
+  const std::string base = "render " + dir + "/s.json --integrator path --spp 256 --adaptive 0.05 --aov samples --quiet ";
+  const auto one = runIsotrace(base + "--threads 1 -o " + dir + "/a1.exr");
+  const auto two = runIsotrace(base + "--threads 2 -o " + dir + "/a2.exr --stats " + dir + "/st.json");
+  ASSERT_EQ(one.status, 0) << one.err;
+  ASSERT_EQ(two.status, 0) << two.err;
+  std::vector<std::string> channels;
+  std::map<std::string, std::string> meta;
+  const auto a1 = readExr(dir + "/a1.exr", &channels, &meta), a2 = readExr(dir + "/a2.exr");
+  EXPECT_EQ(a1, a2);
+  ASSERT_EQ(channels, (std::vector<std::string>{"R", "G", "B", "samples.N"}));
+  int least = 1 << 30, most = 0, sixteen = 0;
+  double total = 0;
+  for (size_t i = 3; i < a1.size(); i += 4) {
+    const int n = int(a1[i]);
+    least = std::min(least, n);
+    most = std::max(most, n);
+    sixteen += n == 16;
+    total += n;
+  }
+  EXPECT_EQ(least, 16);
+  EXPECT_GT(sixteen, 32 * 24 / 4);  // the sky, and the floor beyond the cone, is black
+  EXPECT_GT(most, 16);
+  EXPECT_LE(most, 256);
+  EXPECT_EQ(meta["isotrace:spp"], "16");
+  EXPECT_EQ(meta["isotrace:spp_max"], std::to_string(most));
+  std::ifstream in(dir + "/st.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_NEAR(j["spp_mean"].get<double>(), total / (32 * 24), 1e-3);
+  EXPECT_EQ(j["noise_threshold"].get<double>(), 0.05);
+  EXPECT_EQ(j["interrupted"], false);
+  EXPECT_EQ(runIsotrace(base + "--adaptive 2 -o " + dir + "/x.exr").status, 2);
 }
 
 TEST(Cli, StatsJsonAndAovLayers) {
