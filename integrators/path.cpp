@@ -28,14 +28,17 @@ Vec3f PathIntegrator::sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f&
   if (ls.traced) {
     // An iso-surface light: its radiance is what the ray finds first, if that is the light.
     Hit lit;
-    if (!m_world.intersect(spawnRay(hit, ls.wi), lit, counters.traversal) || m_world.lightOf(lit) != index)
+    Vec3f T;
+    if (!m_world.intersectPastThin(spawnRay(hit, ls.wi), lit, T, counters.traversal) || m_world.lightOf(lit) != index)
       return {0, 0, 0};
-    ls.L = m_world.emitted(lit, -ls.wi);
+    ls.L = m_world.emitted(lit, -ls.wi) * T;
     if (isBlack(ls.L)) return {0, 0, 0};
   } else {
     const Ray shadow = std::isinf(ls.distance) ? spawnRay(hit, ls.wi)
                                                : spawnRayTo(hit, hit.position + ls.wi * ls.distance);
-    if (m_world.occluded(shadow, counters.traversal)) return {0, 0, 0};
+    const Vec3f T = m_world.transmittance(shadow, counters.traversal);
+    if (isBlack(T)) return {0, 0, 0};
+    ls.L = ls.L * T;
   }
   const float lightPdf = ls.pdf * pickPdf;
   const float weight = ls.delta ? 1.f : powerHeuristic(lightPdf, bsdf.pdf(wo, ls.wi));
@@ -47,34 +50,39 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
   Vec3f L{0, 0, 0}, direct{0, 0, 0}, beta{1, 1, 1};
   Ray ray = cameraRay;
   ray.dir = normalize(ray.dir);
-  bool specular = false;  // the last bounce was a delta lobe: no light sampling competed
+  // The last bounce was a delta lobe (or there was none: the camera): no light sampling
+  // competed with it.
+  bool specular = true;
   float bsdfPdf = 0;
   Vec3f previous;  // the last scattering point, for the area light pdf
-  // `bounce` counts scattering events so far: the ray being traced leaves vertex `bounce`.
-  for (int bounce = 0;; ++bounce) {
+  // `bounce` counts scattering events so far: the ray being traced leaves vertex `bounce`. A
+  // straight pass through a thin sheet is no scattering event (the path has not turned), so
+  // a sheet does not use up depth; `segment` counts every ray traced.
+  int bounce = 0;
+  for (int segment = 0;; ++segment) {
     auto add = [&](const Vec3f& c) {
       L += c;
       if (bounce <= 1) direct += c;  // emission seen directly or from the first scattering
     };
     Hit hit;
-    ++(bounce == 0 ? counters.camera : counters.indirect);
+    ++(segment == 0 ? counters.camera : counters.indirect);
     if (!m_world.intersect(ray, hit, counters.traversal)) {
       for (int i : m_world.environmentLights()) {
         const Vec3f Le = lights[i].environment(ray.dir);
-        const float w = bounce == 0 || specular ? 1.f
-                                                : powerHeuristic(bsdfPdf, m_world.lightProbability(i) * lights[i].pdfEnvironment(ray.dir));
+        const float w =
+            specular ? 1.f : powerHeuristic(bsdfPdf, m_world.lightProbability(i) * lights[i].pdfEnvironment(ray.dir));
         add(beta * Le * w);
       }
       break;
     }
-    if (bounce == 0) recordFirstHit(ray, hit, out);
+    if (segment == 0) recordFirstHit(ray, hit, out);
     const Vec3f wo = -ray.dir;
     const Vec3f Le = m_world.emitted(hit, wo);
     if (!isBlack(Le)) {
       float w = 1;
       // Emitters are also reached by light sampling (from the previous vertex): weigh by MIS.
       const int light = m_world.lightOf(hit);
-      if (bounce > 0 && !specular && light >= 0) {
+      if (!specular && light >= 0) {
         const Light& l = lights[size_t(light)];
         const float pdf = l.kind() == Light::Kind::IsoSurface ? l.pdfIsoSurface(previous, ray.dir)
                                                               : l.pdfArea(previous, hit.position, hit.normal);
@@ -82,7 +90,10 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
       }
       add(beta * Le * w);
     }
-    if (bounce == m_maxDepth) break;
+    // At the last scattering event the path ends, unless a thin sheet lets it go on straight.
+    const Material& material = m_world.materials()[size_t(hit.material)];
+    const bool last = bounce == m_maxDepth;
+    if (last && !(material.thin && material.type == MaterialType::Dielectric)) break;
     const Bsdf bsdf = m_world.bsdf(hit);
     if (bsdf.isBlack()) break;
     if (!bsdf.isDelta()) {
@@ -92,19 +103,24 @@ void PathIntegrator::Li(const Ray& cameraRay, Sampler& sampler, RayCounters& cou
     }
     const float u0 = sampler.next(), u1 = sampler.next(), u2 = sampler.next();
     BsdfSample bs;
-    if (!bsdf.sample(wo, u0, u1, u2, bs)) break;
+    if (!bsdf.sample(wo, u0, u1, u2, bs) || (last && !bs.straight)) break;
     // A reflection must leave on wo's side of the geometric surface, a transmission on the
     // other; otherwise the shading normal has bent it through the surface.
     const bool sameSide = dot(bs.wi, hit.normal) * dot(wo, hit.normal) > 0;
     if (sameSide == bs.transmission) break;
     beta = beta * bs.f * (std::fabs(dot(bs.wi, bsdf.frame().n)) / bs.pdf);
     if (!(maxComponent(beta) > 0) || !std::isfinite(maxComponent(beta))) break;
-    specular = bs.delta;
-    bsdfPdf = bs.pdf;
-    previous = hit.position;
+    // Straight through a thin sheet the path has not turned: light sampling from the last real
+    // scattering point saw through the sheet too, so the MIS state stays that point's.
+    if (!bs.straight) {
+      specular = bs.delta;
+      bsdfPdf = bs.pdf;
+      previous = hit.position;
+    }
     ray = spawnRay(hit, bs.wi);
+    if (bs.straight) continue;
     // Russian roulette after three bounces (pbrt-v4): survival in proportion to throughput.
-    if (bounce >= 2) {
+    if (bounce++ >= 2) {
       const float q = std::max(0.05f, 1 - maxComponent(beta));
       if (sampler.next() < q) break;
       beta = beta / (1 - q);

@@ -57,6 +57,13 @@ float fresnelDielectric(float cosI, float eta) {
   return 0.5f * (rs * rs + rp * rp);
 }
 
+float thinDielectricReflectance(float cosI, float eta) {
+  const float r = fresnelDielectric(std::fabs(cosI), eta);
+  if (r >= 1) return 1;
+  const float t = 1 - r;
+  return r + t * t * r / (1 - r * r);
+}
+
 namespace ggx {
 float D(const Vec3f& h, float alpha) {
   if (h.z <= 0) return 0;
@@ -166,8 +173,10 @@ float Bsdf::multipleScatteringProbability(const Vec3f& wo) const {
   return std::clamp(1 - ggx::albedo(std::fabs(wo.z), m_roughness), 0.f, 0.9f);
 }
 
-Bsdf::Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior)
-    : m_type(type), m_frame(frame), m_color(color), m_metallic(metallic), m_eta(ior) {
+Bsdf::Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior,
+           bool thin)
+    : m_type(type), m_frame(frame), m_color(color), m_metallic(metallic), m_eta(ior),
+      m_thin(thin && type == MaterialType::Dielectric) {
   m_alpha = std::max(roughness * roughness, kMinAlpha);
   m_roughness = std::sqrt(m_alpha);
   m_delta = type == MaterialType::Dielectric || (type == MaterialType::Conductor && roughness * roughness < kMinAlpha);
@@ -234,6 +243,22 @@ float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
 
 bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSample& out) const {
   if (m_type == MaterialType::Emissive || woIn.z == 0) return false;
+  if (m_type == MaterialType::Dielectric && m_thin) {
+    const float R = thinDielectricReflectance(woIn.z, m_eta), cosO = std::fabs(woIn.z);
+    out.delta = true;
+    if (u0 < R) {
+      out.wi = {-woIn.x, -woIn.y, woIn.z};
+      out.f = Vec3f{R, R, R} / cosO;
+      out.pdf = R;
+      out.transmission = false;
+      return true;
+    }
+    out.wi = -woIn;
+    out.f = m_color * ((1 - R) / cosO);
+    out.pdf = 1 - R;
+    out.transmission = out.straight = true;
+    return out.pdf > 0;
+  }
   if (m_type == MaterialType::Dielectric) {
     // Smooth glass: the side of wo says whether the ray enters (wo.z > 0) or leaves.
     const float F = fresnelDielectric(woIn.z, m_eta);

@@ -21,6 +21,7 @@ struct Material {
   float metallic = 0, roughness = 0.5f, ior = 1.5f;
   Vec3f emission{0, 0, 0};
   bool twoSided = false;  // emits from both sides
+  bool thin = false;      // dielectric only: a thin sheet (see Bsdf and World::transmittance)
   // Indices into the World's textures; -1: none.
   int colorTexture = -1, metallicRoughnessTexture = -1, normalTexture = -1, emissionTexture = -1;
   float normalScale = 1;
@@ -41,13 +42,18 @@ struct BsdfSample {
   float pdf = 0;
   bool delta = false;
   bool transmission = false;
+  bool straight = false;  // straight through a thin dielectric: the path has not turned
 };
 
 // The local-frame BSDF (z = shading normal, pointing out of the solid).
 class Bsdf {
  public:
   Bsdf() = default;
-  Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior);
+  // `thin` (dielectric only): a thin sheet of that glass (pbrt-v4's ThinDielectricBxDF): it
+  // reflects R + T^2 R / (1 - R^2) (the inner reflections summed) and transmits the rest
+  // straight through, without refraction.
+  Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior,
+       bool thin = false);
 
   Vec3f f(const Vec3f& wo, const Vec3f& wi) const;
   float pdf(const Vec3f& wo, const Vec3f& wi) const;
@@ -76,6 +82,7 @@ class Bsdf {
   Vec3f m_color{0.8f, 0.8f, 0.8f};
   float m_metallic = 0, m_alpha = 0, m_eta = 1.5f;
   float m_roughness = 0;  // sqrt(m_alpha): the energy tables' parameter
+  bool m_thin = false;
   bool m_delta = false;
 };
 
@@ -99,6 +106,8 @@ Vec3f multipleScatteringTint(const Vec3f& f0, float roughness);
 
 // Exact Fresnel reflectance of a smooth dielectric; cosI > 0 on the side of the normal.
 float fresnelDielectric(float cosI, float eta);
+// Reflectance of a thin sheet of that dielectric, its inner reflections summed (pbrt-v4).
+float thinDielectricReflectance(float cosI, float eta);
 
 // Helpers shared by integrators and lights.
 inline float luminance(const Vec3f& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }

@@ -39,6 +39,7 @@ struct MaterialDesc {
   double ior = 1.5;
   Vec3d emission{0, 0, 0};  // radiance of an emissive material
   bool twoSided = false;    // emission from both sides
+  bool thin = false;        // dielectric: a thin sheet (straight transmission, shadows pass)
 };
 
 struct IsoSurfaceDesc {

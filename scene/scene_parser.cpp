@@ -212,6 +212,7 @@ MaterialDesc parseMaterial(ObjectReader r) {
     m.type = MaterialType::Dielectric;
     m.color = r.rgb("color", 0, 1).value_or(Vec3d{1, 1, 1});
     m.ior = r.number("ior", 1.5, 1.0001, 4);
+    m.thin = r.boolean("thin", false);
   } else {
     m.type = MaterialType::Emissive;
     m.color = {0, 0, 0};

@@ -145,6 +145,8 @@ int World::materialFor(const SceneDesc& scene, const std::string& name) {
   m.metallic = float(d.metallic);
   m.roughness = float(d.roughness);
   m.ior = float(d.ior);
+  m.thin = d.thin;
+  m_hasThin = m_hasThin || d.thin;
   m.emission = Vec3f(d.emission);
   m.twoSided = d.twoSided;
   m_materials.push_back(m);
@@ -720,6 +722,33 @@ bool World::occluded(const Ray& ray, TraversalStats& stats) const {
   return crossesAtInactiveStart(start, nullptr, stats) || traceShadow(start, stats);
 }
 
+Vec3f World::transmittance(const Ray& shadow, TraversalStats& stats) const {
+  if (!m_hasThin) return occluded(shadow, stats) ? Vec3f{0, 0, 0} : Vec3f{1, 1, 1};
+  Hit hit;
+  Vec3f T;
+  return intersectPastThin(shadow, hit, T, stats) ? Vec3f{0, 0, 0} : T;
+}
+
+bool World::intersectPastThin(const Ray& first, Hit& hit, Vec3f& T, TraversalStats& stats) const {
+  T = {1, 1, 1};
+  if (!m_hasThin) return intersect(first, hit, stats);
+  // Hit by hit: each thin crossing scales the light. A ray to a point (spawnRayTo) keeps its
+  // target; any other ray its direction.
+  const bool toPoint = first.tfar < 1;
+  const Vec3f target = Vec3f(first.origin() + Vec3d(first.dir));
+  const Vec3f dir = normalize(first.dir);
+  Ray ray = first;
+  for (int crossing = 0; crossing < 64; ++crossing) {
+    if (!intersect(ray, hit, stats)) return false;
+    const Material& m = m_materials[size_t(hit.material)];
+    if (!(m.type == MaterialType::Dielectric && m.thin)) return true;
+    T = T * albedo(hit) * (1 - thinDielectricReflectance(dot(dir, hit.normal), m.ior));
+    if (!(std::max({T.x, T.y, T.z}) > 0)) return true;  // nothing passes: as good as opaque
+    ray = toPoint ? spawnRayTo(hit, target) : spawnRay(hit, first.dir);
+  }
+  return true;
+}
+
 bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   IsoRayContext context;
   const Vec3d origin = ray.origin();
@@ -759,7 +788,7 @@ Bsdf World::bsdf(const Hit& hit) const {
     const Vec3f mapped = t * local.x + b * local.y + n * local.z;
     if (length(mapped) > 0 && std::isfinite(length(mapped))) n = normalize(mapped);
   }
-  return Bsdf(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior);
+  return Bsdf(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
 }
 
 Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {

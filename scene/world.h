@@ -78,6 +78,13 @@ class World {
 
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const;
   bool occluded(const Ray& ray, TraversalStats& stats) const;
+  // What of a shadow ray's light arrives: 1 if nothing is in the way, 0 if something opaque
+  // (or refracting) is; thin dielectrics ("thin": true) let it through, tinted by their colour
+  // and their thin-sheet transmission at each crossing. Without thin materials it is occluded().
+  Vec3f transmittance(const Ray& ray, TraversalStats& stats) const;
+  // The first hit that is not a thin dielectric, and in T what the thin ones before it let
+  // through (1 without thin materials: then it is intersect()).
+  bool intersectPastThin(const Ray& ray, Hit& hit, Vec3f& T, TraversalStats& stats) const;
 
   // Shading at a hit: the BSDF (textures and normal map applied), the base colour, and the
   // radiance emitted towards `wo` (unit, pointing away from the surface).
@@ -162,6 +169,7 @@ class World {
   std::vector<std::vector<GeometryRecord>> m_instanceRecords;
   std::vector<std::string> m_warnings;
   double m_loadSeconds = 0, m_buildSeconds = 0;
+  bool m_hasThin = false;  // a thin dielectric is in the scene: shadow rays go through it
 };
 
 // Rays leaving a hit (pbrt-v4's OffsetRayOrigin): the origin moves along the geometric normal

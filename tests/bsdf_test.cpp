@@ -145,6 +145,36 @@ TEST(Bsdf, RoughWhiteMetalsPassTheWhiteFurnace) {
     }
 }
 
+// A thin sheet reflects R + T^2 R / (1 - R^2) of the light (more than one surface) and lets
+// the rest through straight, tinted; nothing is lost.
+TEST(Bsdf, ThinGlassTransmitsStraight) {
+  const Frame frame{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  const Bsdf b(MaterialType::Dielectric, frame, {0.9f, 0.8f, 0.7f}, 0, 0, 1.5f, true);
+  EXPECT_TRUE(b.isDelta());
+  for (float cosO : {0.9f, 0.4f, -0.6f}) {
+    const Vec3f wo{std::sqrt(1 - cosO * cosO), 0, cosO};
+    const float R = thinDielectricReflectance(cosO, 1.5f);
+    EXPECT_GT(R, fresnelDielectric(std::fabs(cosO), 1.5f));
+    double reflected = 0, transmitted = 0;
+    const int n = 20000;
+    for (int i = 0; i < n; ++i) {
+      BsdfSample s;
+      ASSERT_TRUE(b.sampleLocal(wo, (i + 0.5f) / n, 0.5f, 0.5f, s));
+      const float weight = s.f.y * std::fabs(s.wi.z) / s.pdf;
+      if (s.transmission) {
+        EXPECT_TRUE(s.straight);
+        EXPECT_EQ(s.wi, -wo);
+        transmitted += weight;
+      } else {
+        EXPECT_EQ(s.wi, (Vec3f{-wo.x, -wo.y, wo.z}));
+        reflected += weight;
+      }
+    }
+    EXPECT_NEAR(reflected / n, R, 2e-3);
+    EXPECT_NEAR(transmitted / n, 0.8 * (1 - R), 2e-3);  // the green tint
+  }
+}
+
 TEST(Bsdf, SmoothGlassReflectsAndRefractsByFresnel) {
   const float eta = 1.5f;
   Frame f{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};

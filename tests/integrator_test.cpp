@@ -364,6 +364,33 @@ TEST(Sampling, ChiSquareOfIsoSurfaceLights) {
   }
 }
 
+// A thin glass sheet ("thin": true) between a floor and a uniform sky passes the light
+// straight through, tinted: a floor of albedo 0.5 under a sheet of tint 0.5 (ior 1.0001: no
+// reflection to speak of) shows 0.5 * 0.5 * 1 = 0.25, by shadow rays through the sheet
+// (direct) and with BSDF paths through it combined by MIS (path): no double counting, and the
+// sheet uses up no depth. A sheet of real (not thin) glass stops the shadow rays.
+TEST(Integrators, ThinGlassLetsShadowRaysThrough) {
+  auto scene = [](bool thin) {
+    return parseSceneText(std::string(R"({"camera": {"position": [0, 0.5, 0], "look_at": [0.3, 0, -1], "fov": 40},
+      "meshes": [{"shape": "quad", "transform": {"scale": 1000}, "material": "floor"},
+                 {"shape": "quad", "transform": {"scale": 1000, "translate": [0, 1, 0]}, "material": "sheet"}],
+      "materials": {"floor": {"type": "diffuse", "color": 0.5},
+                    "sheet": {"type": "dielectric", "ior": 1.0001, "color": 0.5, "thin": )") +
+                              (thin ? "true" : "false") + R"(}},
+      "lights": [{"type": "environment", "radiance": 1}]})", "/t/sheet.json");
+  };
+  SceneDesc thin = scene(true);
+  thin.settings.maxDepth = 1;
+  const ImageStats direct = renderAndCompare(thin, "direct", 64, 0.25, 0.002, 16);
+  EXPECT_NEAR(direct.mean, 0.25, 5 * direct.standardError + 0.002);
+  thin.settings.maxDepth = 5;
+  const ImageStats path = renderAndCompare(thin, "path", 64, 0.25, 0.002, 16);
+  EXPECT_NEAR(path.mean, 0.25, 5 * path.standardError + 0.002);
+  SceneDesc glass = scene(false);
+  const ImageStats blocked = renderAndCompare(glass, "direct", 16, 0, 0.002, 16);
+  EXPECT_LT(blocked.mean, 0.01);
+}
+
 // Lights are chosen in proportion to their power (pbrt-v4's power light sampler): a point light
 // 4 pi I, a spot 2 pi I (1 - (cos inner + cos outer) / 2), a directional light pi r^2 E over
 // the scene's bounding sphere; black lights are never chosen.
