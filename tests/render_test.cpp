@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 
 #include "renderer/render.h"
 #include "scene/world.h"
@@ -174,6 +175,34 @@ TEST(Render, CornellExampleMatchesItsReference) {
               outliers, test.size());
   EXPECT_LE(outliers, int(0.005 * test.size()));
   EXPECT_NEAR(meanTest, meanRef, 0.02 * meanRef);
+}
+
+// Every example loads with every iso-surface non-empty (no iso value outside its volume's
+// values), and its camera sees them: iso-surfaces fill at least 5% of the centre of the view.
+TEST(Examples, EveryExampleLoadsAndItsCameraSeesItsSurfaces) {
+  int examples = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(std::string(ISOTRACE_SOURCE_DIR) + "/examples")) {
+    if (entry.path().extension() != ".json") continue;
+    SCOPED_TRACE(entry.path().string());
+    ++examples;
+    const SceneDesc scene = parseSceneFile(entry.path().string());
+    World world(scene, scene.settings.intersector);
+    for (const std::string& w : world.warnings()) EXPECT_EQ(w.find("iso value"), std::string::npos) << w;
+    for (const SurfaceInfo& s : world.surfaces()) EXPECT_FALSE(s.surface->activeBricks().empty()) << "iso " << s.iso;
+    // The iso-surfaces fill a good part of the centre of the view.
+    const int w = 32, h = 24;
+    Camera camera(world.camera(), w, h);
+    TraversalStats stats;
+    int isoHits = 0, centre = 0;
+    for (int y = h / 4; y < 3 * h / 4; ++y)
+      for (int x = w / 4; x < 3 * w / 4; ++x) {
+        Hit hit;
+        ++centre;
+        if (world.intersect(camera.generateRay(x + 0.5f, y + 0.5f), hit, stats) && hit.surface >= 0) ++isoHits;
+      }
+    EXPECT_GT(isoHits, centre / 20) << "the camera hardly sees the iso-surfaces";
+  }
+  EXPECT_GE(examples, 6);
 }
 
 }  // namespace
