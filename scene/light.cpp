@@ -112,6 +112,15 @@ Light Light::isoSurface(int surface, std::vector<Vec3f> lower, std::vector<Vec3f
   l.m_boxUpper = std::move(upper);
   l.m_boxes = Distribution1D(weights);
   l.m_area = area;
+  for (size_t b = 0; b < l.m_boxLower.size(); ++b) {
+    const Vec3f e = l.m_boxUpper[b] - l.m_boxLower[b];
+    const double volume = double(e.x) * e.y * e.z;
+    for (int a = 0; a < 3; ++a) {
+      l.m_slabLo[a].push_back(l.m_boxLower[b][a]);
+      l.m_slabHi[a].push_back(l.m_boxUpper[b][a]);
+    }
+    l.m_boxScale.push_back(volume > 0 ? float(l.m_boxes.probability(int(b)) / (3 * volume)) : 0.f);
+  }
   return l;
 }
 
@@ -268,28 +277,22 @@ float Light::pdfEnvironment(const Vec3f& wi) const {
 // (t1^3 - t0^3) / (3 V) (the solid angle element at distance t covers t^2 of area).
 float Light::pdfIsoSurface(const Vec3f& p, const Vec3f& wi) const {
   if (m_kind != Kind::IsoSurface || m_boxes.total() <= 0) return 0;
-  double pdf = 0;
-  for (size_t b = 0; b < m_boxLower.size(); ++b) {
-    const float prob = m_boxes.probability(int(b));
-    if (!(prob > 0)) continue;
-    double t0 = 0, t1 = INFINITY;
-    for (int a = 0; a < 3; ++a) {
-      const double lo = m_boxLower[b][a], hi = m_boxUpper[b][a], o = p[a], d = wi[a];
-      if (d == 0) {
-        if (o < lo || o > hi) t1 = -1;
-        continue;
-      }
-      double ta = (lo - o) / d, tb = (hi - o) / d;
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-    }
-    if (!(t1 > t0)) continue;
-    const Vec3f e = m_boxUpper[b] - m_boxLower[b];
-    const double volume = double(e.x) * e.y * e.z;
-    if (volume > 0) pdf += prob * (t1 * t1 * t1 - t0 * t0 * t0) / (3 * volume);
+  // Slab tests with the reciprocal direction (an axis the ray does not move along gives
+  // infinite slab distances of the right signs); boxes the ray misses add 0.
+  const float ix = 1 / wi.x, iy = 1 / wi.y, iz = 1 / wi.z;
+  const float *loX = m_slabLo[0].data(), *loY = m_slabLo[1].data(), *loZ = m_slabLo[2].data();
+  const float *hiX = m_slabHi[0].data(), *hiY = m_slabHi[1].data(), *hiZ = m_slabHi[2].data();
+  const float* scale = m_boxScale.data();
+  float pdf = 0;
+  for (size_t b = 0; b < m_boxScale.size(); ++b) {
+    const float ax = (loX[b] - p.x) * ix, bx = (hiX[b] - p.x) * ix;
+    const float ay = (loY[b] - p.y) * iy, by = (hiY[b] - p.y) * iy;
+    const float az = (loZ[b] - p.z) * iz, bz = (hiZ[b] - p.z) * iz;
+    const float t0 = std::max(std::max(0.f, std::min(ax, bx)), std::max(std::min(ay, by), std::min(az, bz)));
+    const float t1 = std::min(std::max(ax, bx), std::min(std::max(ay, by), std::max(az, bz)));
+    pdf += t1 > t0 ? scale[b] * (t1 * t1 * t1 - t0 * t0 * t0) : 0.f;
   }
-  return float(pdf);
+  return pdf;
 }
 
 float Light::pdfArea(const Vec3f& p, const Vec3f& y, const Vec3f& ny) const {

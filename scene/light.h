@@ -97,6 +97,9 @@ class Light {
   int m_surface = -1;
   std::vector<Vec3f> m_boxLower, m_boxUpper;
   Distribution1D m_boxes;
+  // The same boxes by axis, with probability / (3 volume) each: pdfIsoSurface runs for every
+  // light sample and every BSDF hit of the surface, over all boxes, so it is a flat loop.
+  std::vector<float> m_slabLo[3], m_slabHi[3], m_boxScale;
   float m_area = 0;
 };
 
