@@ -45,9 +45,9 @@ render $tmp/chest_solid.json --resolution 320x240 --spp 128 -o $out/glass_solid.
 
 # Fireflies: a diffuse floor under a spot light and a gold gyroid, 64 spp, then the indirect
 # clamp, then adaptive sampling in about the same time.
-render bench/scenes/fireflies.json --resolution 320x214 --spp 64 -o $out/fireflies.png
-render bench/scenes/fireflies.json --resolution 320x214 --spp 64 --clamp 1 -o $out/fireflies_clamp.png
-render bench/scenes/fireflies.json --resolution 320x214 --spp 256 --adaptive 0.2 -o $out/fireflies_adaptive.png
+render bench/noise/fireflies.json --resolution 320x214 --spp 64 -o $out/fireflies.png
+render bench/noise/fireflies.json --resolution 320x214 --spp 64 --clamp 1 -o $out/fireflies_clamp.png
+render bench/noise/fireflies.json --resolution 320x214 --spp 256 --adaptive 0.2 -o $out/fireflies_adaptive.png
 
 # Exposure and tone mapping of the iso-surface lamp: clamp, and ACES one stop brighter.
 render examples/iso_lamp.json --resolution 320x240 --spp 64 --exposure 1 -o $out/tonemap_clamp.png
