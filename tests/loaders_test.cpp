@@ -4,6 +4,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <random>
 #include <sstream>
 
 #include "tests/test_util.h"
@@ -252,6 +253,37 @@ TEST(Grid, QuantilesOfKnownValues) {
   EXPECT_NEAR(f[1], -125, bin);
   EXPECT_NEAR(f[2], 0, bin);
   EXPECT_NEAR(f[3], 249.5, bin);
+}
+
+// The smooth gradient is exact for a linear field everywhere (one-sided differences on the
+// grid's faces included) and, away from the faces, for a quadratic one (central differences
+// of a quadratic are exact at the samples, and its gradient is linear between them).
+TEST(Grid, SmoothGradientIsExactForLinearAndQuadraticFields) {
+  const Vec3i d{5, 6, 7};
+  std::vector<float> linear, quadratic;
+  for (int z = 0; z < d.z; ++z)
+    for (int y = 0; y < d.y; ++y)
+      for (int x = 0; x < d.x; ++x) {
+        linear.push_back(float(2 * x + 3 * y - z));
+        quadratic.push_back(float(x * x + 0.5 * y * y - z * z + x * y));
+      }
+  const Grid gl(d, Grid::Storage(linear)), gq(d, Grid::Storage(quadratic));
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int i = 0; i < 500; ++i) {
+    const Vec3d p{u(rng) * (d.x - 1), u(rng) * (d.y - 1), u(rng) * (d.z - 1)};
+    const Vec3d g = gl.smoothGradient(p);
+    EXPECT_NEAR(g.x, 2, 1e-5);
+    EXPECT_NEAR(g.y, 3, 1e-5);
+    EXPECT_NEAR(g.z, -1, 1e-5);
+    const Vec3d q{1 + u(rng) * (d.x - 3), 1 + u(rng) * (d.y - 3), 1 + u(rng) * (d.z - 3)};  // away from the faces
+    const Vec3d h = gq.smoothGradient(q);
+    // The gradient (2x + y, y + x, -2z) interpolated trilinearly: exact where it is linear per
+    // axis, which it is (each component is linear in the coordinates).
+    EXPECT_NEAR(h.x, 2 * q.x + q.y, 1e-4);
+    EXPECT_NEAR(h.y, q.y + q.x, 1e-4);
+    EXPECT_NEAR(h.z, -2 * q.z, 1e-4);
+  }
 }
 
 TEST(Procedural, SphereFieldIsTheDistanceToTheCentre) {

@@ -133,18 +133,34 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
   Vec3d f;
   locate(p, c, f);
   const int64_t stride[3] = {1, m_dims.x, int64_t(m_dims.x) * m_dims.y};
+  // Per axis: the central differences at the cell's two corners along it, interpolated
+  // along it, then bilinearly across it. Away from the grid's faces every neighbour exists
+  // (the common case, no branches); on them the differences become one-sided.
+  bool interior = true;
+  for (int a = 0; a < 3; ++a) interior = interior && c[a] >= 1 && c[a] + 2 <= m_dims[a] - 1;
+  const float w[3][2] = {{float(1 - f.x), float(f.x)}, {float(1 - f.y), float(f.y)}, {float(1 - f.z), float(f.z)}};
   Vec3d g{0, 0, 0};
   visitSamples([&](const auto* v) {
-    for (int k = 0; k < 8; ++k) {
-      const Vec3i q{c.x + (k & 1), c.y + (k >> 1 & 1), c.z + (k >> 2 & 1)};
-      const size_t i = index(q.x, q.y, q.z);
-      const double w = (k & 1 ? f.x : 1 - f.x) * (k & 2 ? f.y : 1 - f.y) * (k & 4 ? f.z : 1 - f.z);
-      for (int a = 0; a < 3; ++a) {
-        // Central where both neighbours exist, one-sided on a face (dims >= 2 on every axis).
-        const bool hasLo = q[a] > 0, hasHi = q[a] < m_dims[a] - 1;
-        const double lo = double(v[hasLo ? i - stride[a] : i]), hi = double(v[hasHi ? i + stride[a] : i]);
-        g[a] += w * (hi - lo) / (hasLo && hasHi ? 2 : 1);
-      }
+    const size_t base = index(c.x, c.y, c.z);
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3, d = (a + 2) % 3;  // the two other axes
+      const int64_t sa = stride[a];
+      float sum = 0;
+      for (int j = 0; j < 2; ++j)
+        for (int k = 0; k < 2; ++k) {
+          const size_t row = base + size_t(j * stride[b] + k * stride[d]);
+          float g0, g1;
+          if (interior) {
+            g0 = 0.5f * (float(v[row + sa]) - float(v[row - sa]));
+            g1 = 0.5f * (float(v[row + 2 * sa]) - float(v[row]));
+          } else {
+            const bool lo = c[a] > 0, hi = c[a] + 2 <= m_dims[a] - 1;
+            g0 = (float(v[row + sa]) - float(v[lo ? row - sa : row])) / (lo ? 2.f : 1.f);
+            g1 = (float(v[hi ? row + 2 * sa : row + sa]) - float(v[row])) / (hi ? 2.f : 1.f);
+          }
+          sum += w[b][j] * w[d][k] * (w[a][0] * g0 + w[a][1] * g1);
+        }
+      g[a] = sum;
     }
   });
   return g;
