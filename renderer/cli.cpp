@@ -1,9 +1,13 @@
 #include "renderer/cli.h"
 
 #include <CLI/CLI.hpp>
+#include <OpenImageIO/oiioversion.h>
+#include <embree3/rtcore_config.h>
+#include <oneapi/tbb/version.h>
 
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <chrono>
@@ -28,7 +32,7 @@ struct RenderFlags {
   std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap;
   int spp = 0, threads = -1, maxDepth = 0;
   long long seed = -1;
-  bool quiet = false, alpha = false;
+  bool quiet = false, alpha = false, allowLarge = false;
   std::optional<double> exposure, clamp, adaptive;
 };
 
@@ -48,6 +52,10 @@ DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
     throw InputError("--alpha", "", "JPEG has no alpha channel: write .png or .exr");
   return d;
 }
+
+// Images above this many pixels need --allow-large; no side may exceed kMaxFilmSide.
+constexpr long long kMaxFilmPixels = 1LL << 25;
+constexpr int kMaxFilmSide = 16384;
 
 // Flags override the scene file; each is checked here so that a bad one is an InputError.
 void applyFlags(const RenderFlags& f, SceneDesc& scene) {
@@ -70,15 +78,17 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
       throw InputError("--resolution", "", "expected WIDTHxHEIGHT, e.g. 640x480, got '" + f.resolution + "'");
     s.width = std::stoi(m[1]);
     s.height = std::stoi(m[2]);
+    if (s.width > kMaxFilmSide || s.height > kMaxFilmSide)
+      throw InputError("--resolution", "", "each side must be at most " + std::to_string(kMaxFilmSide) + " pixels");
   }
-  if (f.spp != 0) {
-    if (f.spp < 0) throw InputError("--spp", "", "must be at least 1");
-    s.spp = f.spp;
-  }
-  if (f.maxDepth != 0) {
-    if (f.maxDepth < 1) throw InputError("--max-depth", "", "must be at least 1");
-    s.maxDepth = f.maxDepth;
-  }
+  // The film costs ~170 bytes per pixel while rendering (the sums of every layer, in double).
+  if (double(s.width) * s.height > double(kMaxFilmPixels) && !f.allowLarge)
+    throw InputError(f.resolution.empty() ? scene.path : "--resolution", f.resolution.empty() ? "/film" : "",
+                     std::to_string(s.width) + "x" + std::to_string(s.height) + " is more than " +
+                         std::to_string(kMaxFilmPixels) + " pixels (~" +
+                         std::to_string(kMaxFilmPixels * 170 >> 30) + " GiB to render); --allow-large renders it anyway");
+  if (f.spp != 0) s.spp = f.spp;  // CLI11 checked the range; 0 is "not given"
+  if (f.maxDepth != 0) s.maxDepth = f.maxDepth;
   if (f.threads >= 0) s.threads = f.threads;
   if (f.seed >= 0) s.seed = uint64_t(f.seed);
   if (f.clamp) {
@@ -115,9 +125,33 @@ std::string withSuffix(const std::string& path, const std::string& suffix) {
   return (p.parent_path() / (p.stem().string() + "." + suffix + p.extension().string())).string();
 }
 
-void onSigint(int) {
+// SIGINT and SIGTERM: the first asks the render to stop (the image of the samples so far is
+// still written, and nothing partial is left); a second SIGINT ends the process at once.
+void onStopSignal(int signal) {
   requestStop();
-  std::signal(SIGINT, SIG_DFL);  // a second Ctrl-C ends the process at once
+  if (signal == SIGINT) std::signal(SIGINT, SIG_DFL);
+}
+
+// A temporary name beside `path`, unique to this process: ".NAME.partial-PID".
+std::string temporaryBeside(const std::string& path) {
+  const std::filesystem::path p(path);
+  return (p.parent_path() / ("." + p.filename().string() + ".partial-" + std::to_string(getpid()))).string();
+}
+
+// An output must be writable before any work is done: its directory exists and takes a file,
+// and the name is no directory.
+void checkWritable(const std::string& path) {
+  namespace fs = std::filesystem;
+  const fs::path p(path);
+  std::error_code ec;
+  if (fs::is_directory(p, ec)) throw InputError(path, "", "is a directory; name the output file");
+  if (p.has_parent_path() && !fs::is_directory(p.parent_path(), ec))
+    throw InputError(path, "", "output directory does not exist");
+  const std::string probe = temporaryBeside(path);
+  FILE* f = std::fopen(probe.c_str(), "w");
+  if (!f) throw InputError(path, "", std::string("cannot write in its directory: ") + std::strerror(errno));
+  std::fclose(f);
+  std::remove(probe.c_str());
 }
 
 // The shortest decimal that reads back as the same double (0.28, not 0.28000000000000003).
@@ -150,7 +184,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, const World& wo
   const RenderSettings& s = scene.settings;
   const RayCounters& c = r.counters;
   const uint64_t rays = c.camera + c.shadow + c.indirect;
-  const std::string temp = path + ".partial";
+  const std::string temp = temporaryBeside(path);
   FILE* f = std::fopen(temp.c_str(), "w");
   if (!f) throw InputError(path, "", "cannot write statistics");
   std::fprintf(f,
@@ -183,6 +217,8 @@ int render(const RenderFlags& flags) {
   const std::string output = flags.output.empty()
                                  ? std::filesystem::path(flags.scene).stem().string() + ".png"
                                  : flags.output;
+  std::error_code ec;
+  if (std::filesystem::is_directory(output, ec)) throw InputError(output, "", "is a directory; name the output file");
   const DisplaySettings display = displayFlags(flags, output);  // bad names and values before any work
   const RenderSettings& s = scene.settings;
   RenderOptions options;
@@ -193,12 +229,29 @@ int render(const RenderFlags& flags) {
   options.alpha = flags.alpha;
   options.noiseThreshold = s.noiseThreshold;
   options.progress = !flags.quiet && isatty(2);
-  if (!flags.stats.empty()) {
-    const std::filesystem::path sp(flags.stats);
-    if (sp.has_parent_path() && !std::filesystem::is_directory(sp.parent_path()))
-      throw InputError(flags.stats, "", "output directory does not exist");
+  if (s.integrator == "compare") {
+    for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(output, part));
+  } else {
+    checkWritable(output);
   }
+  if (!flags.stats.empty()) checkWritable(flags.stats);
+  // From here on a stop signal is a request: loading ends first (then nothing is written),
+  // a render ends at the next tile and its image is written whole.
+  clearStopRequest();
+  auto previousInt = std::signal(SIGINT, onStopSignal);
+  auto previousTerm = std::signal(SIGTERM, onStopSignal);
+  struct RestoreSignals {
+    decltype(previousInt) i, t;
+    ~RestoreSignals() {
+      std::signal(SIGINT, i == SIG_ERR ? SIG_DFL : i);
+      std::signal(SIGTERM, t == SIG_ERR ? SIG_DFL : t);
+    }
+  } restore{previousInt, previousTerm};
   World world(scene, s.intersector);
+  if (stopRequested()) {
+    std::fprintf(stderr, "isotrace: interrupted while loading: no image written\n");
+    return 130;
+  }
   for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
   Camera camera(world.camera(), s.width, s.height);
   auto integrator = makeIntegrator(s.integrator, world, s);
@@ -206,10 +259,7 @@ int render(const RenderFlags& flags) {
   std::unique_ptr<Film> direct;
   if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
 
-  clearStopRequest();
-  auto previous = std::signal(SIGINT, onSigint);
   const RenderResult result = renderFrame(camera, *integrator, options, film, direct.get());
-  std::signal(SIGINT, previous == SIG_ERR ? SIG_DFL : previous);
 
   std::map<std::string, std::string> metadata = {
       {"Software", "isotrace"},
@@ -406,7 +456,7 @@ void writeJsonFile(const std::string& path, const std::string& text) {
   const std::filesystem::path p(path);
   if (p.has_parent_path() && !std::filesystem::is_directory(p.parent_path()))
     throw InputError(path, "", "output directory does not exist");
-  const std::string temp = path + ".partial";
+  const std::string temp = temporaryBeside(path);
   FILE* f = std::fopen(temp.c_str(), "w");
   const bool ok = f && std::fputs(text.c_str(), f) >= 0;
   if (f && std::fclose(f) != 0) throw InputError(path, "", "cannot write");
@@ -595,22 +645,37 @@ int exportMesh(const MeshFlags& flags) {
 
 }  // namespace
 
+std::string versionText() {
+  return std::string("isotrace ") + ISOTRACE_VERSION + "\nEmbree " + RTC_VERSION_STRING + ", OpenVDB " +
+         openVdbVersion() + ", OpenImageIO " + OIIO_VERSION_STRING + ", oneTBB " + TBB_VERSION_STRING;
+}
+
 int runCommandLine(int argc, char** argv) {
   CLI::App app{"isotrace: a path tracer for glTF meshes and exact iso-surfaces of volume data"};
   app.require_subcommand(1);
+  app.set_version_flag("--version", versionText(), "print the version of isotrace and of its libraries");
+  // A first word that is no command and no option: say so, with the commands.
+  const char* commands[] = {"render", "info", "watertight", "bench", "mesh"};
+  if (argc >= 2 && argv[1][0] != '-' &&
+      std::none_of(std::begin(commands), std::end(commands), [&](const char* c) { return std::strcmp(argv[1], c) == 0; })) {
+    std::fprintf(stderr, "isotrace: unknown command '%s' (commands: render, info, watertight, bench, mesh; see isotrace --help)\n", argv[1]);
+    return 2;
+  }
   RenderFlags flags;
   CLI::App* renderCmd = app.add_subcommand("render", "render a scene to an EXR or PNG image");
   renderCmd->add_option("scene", flags.scene, "scene file (JSON)")->required();
   renderCmd->add_option("-o,--output", flags.output, "output image, .exr (linear), .png or .jpg (sRGB); default <scene>.png");
-  renderCmd->add_option("--spp", flags.spp, "samples per pixel");
+  renderCmd->add_option("--spp", flags.spp, "samples per pixel")->check(CLI::Range(1, 1 << 20));
   renderCmd->add_option("--integrator", flags.integrator, std::string("integrator: ") + integratorList());
-  renderCmd->add_option("--max-depth", flags.maxDepth, "longest path for direct/path/compare (1: direct light only)");
+  renderCmd->add_option("--max-depth", flags.maxDepth, "longest path for direct/path/compare (1: direct light only)")
+      ->check(CLI::Range(1, 1000));
   renderCmd->add_option("--aov", flags.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance, samples");
   renderCmd->add_option("--stats", flags.stats, "write times, ray counts and counters as JSON to this file");
   renderCmd->add_option("--intersector", flags.intersector, std::string("intersector: ") + intersectorList());
   renderCmd->add_option("--resolution", flags.resolution, "image size WIDTHxHEIGHT");
-  renderCmd->add_option("--threads", flags.threads, "worker threads (0: all cores)");
-  renderCmd->add_option("--seed", flags.seed, "random seed");
+  renderCmd->add_option("--threads", flags.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
+  renderCmd->add_option("--seed", flags.seed, "random seed (0 to 2^62)")->check(CLI::Range(0LL, 1LL << 62));
+  renderCmd->add_flag("--allow-large", flags.allowLarge, "allow images above 2^25 pixels (each side stays <= 16384)");
   renderCmd->add_flag("--quiet", flags.quiet, "print only the output path");
   renderCmd->add_option("--exposure", flags.exposure, "PNG/JPEG: scale radiance by 2^EV before tone mapping (default 0)");
   renderCmd->add_option("--tonemap", flags.tonemap, "PNG/JPEG: clamp (default), aces or filmic");
@@ -623,18 +688,19 @@ int runCommandLine(int argc, char** argv) {
   CheckFlags check, benchFlags;
   CLI::App* watertightCmd = app.add_subcommand("watertight", "count holes and double hits of every iso-surface under secondary rays");
   watertightCmd->add_option("scene", check.scene, "scene file (JSON)")->required();
-  watertightCmd->add_option("--rays", check.rays, "rays per test and iso-surface (default 100000)");
+  watertightCmd->add_option("--rays", check.rays, "rays per test and iso-surface (default 100000)")->check(CLI::Range(1, 1 << 30));
   watertightCmd->add_option("--intersector", check.intersector, std::string("intersector: ") + intersectorList());
-  watertightCmd->add_option("--seed", check.seed, "random seed (default 1)");
+  watertightCmd->add_option("--seed", check.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
   watertightCmd->add_option("--offset", check.offset, "move every volume by X,Y,Z (e.g. 1e5,1e5,1e5)");
-  watertightCmd->add_option("--threads", check.threads, "worker threads (0: all cores)");
+  watertightCmd->add_option("--threads", check.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   watertightCmd->add_option("--json", check.json, "write the counts as JSON");
   CLI::App* benchCmd = app.add_subcommand("bench", "time per ray against error versus `reference`, per intersector");
   benchCmd->add_option("scene", benchFlags.scene, "scene file (JSON)")->required();
   benchFlags.rays = 20000;
   benchCmd->add_option("--intersector", benchFlags.intersector, "comma-separated intersectors (default: all, with 1-8 iterations)");
-  benchCmd->add_option("--rays", benchFlags.rays, "rays of each kind per iso-surface and intersector (default 20000)");
-  benchCmd->add_option("--seed", benchFlags.seed, "random seed (default 1)");
+  benchCmd->add_option("--rays", benchFlags.rays, "rays of each kind per iso-surface and intersector (default 20000)")
+      ->check(CLI::Range(1, 1 << 26));
+  benchCmd->add_option("--seed", benchFlags.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
   benchCmd->add_option("--json", benchFlags.json, "write the results as JSON");
   MeshFlags meshFlags;
   CLI::App* meshCmd = app.add_subcommand("mesh", "write one iso-surface as a triangle mesh (glTF, world space)");
@@ -642,14 +708,27 @@ int runCommandLine(int argc, char** argv) {
   meshCmd->add_option("-o,--output", meshFlags.output, "output mesh, .glb or .gltf")->required();
   meshCmd->add_option("--volume", meshFlags.volume, "volume index in the scene, from 0 (default 0)");
   meshCmd->add_option("--surface", meshFlags.surface, "iso-surface index in that volume, from 0 (default 0)");
+  for (CLI::App* sub : {renderCmd, infoCmd, watertightCmd, benchCmd, meshCmd}) sub->allow_extras();
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);
   } catch (const CLI::CallForAllHelp& e) {
     return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "isotrace: %s (see isotrace --help)\n", e.what());
+    return 2;
+  }
+  // Arguments no option takes, in the order given (CLI11's own message lists them backwards).
+  for (CLI::App* sub : app.get_subcommands()) {
+    const std::vector<std::string> extra = sub->remaining();
+    if (extra.empty()) continue;
+    std::string list;
+    for (const std::string& e : extra) list += (list.empty() ? "" : " ") + e;
+    std::fprintf(stderr, "isotrace %s: unexpected argument%s '%s' (see isotrace %s --help)\n", sub->get_name().c_str(),
+                 extra.size() > 1 ? "s" : "", list.c_str(), sub->get_name().c_str());
     return 2;
   }
   try {

@@ -158,6 +158,8 @@ std::string glbJson(const std::string& bytes, const std::string& file) {
 }
 
 std::string readFile(const std::string& path) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a glTF file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, "", "cannot open glTF file");
   std::stringstream s;
@@ -171,6 +173,8 @@ bool keepEncoded(tinygltf::Image* image, const int, std::string*, std::string*, 
   image->image.assign(bytes, bytes + size);
   return true;
 }
+
+constexpr int kMaxNodeDepth = 1000;
 
 class Reader {
  public:
@@ -382,10 +386,12 @@ class Reader {
   }
 
   void visit(int index, const Transform& parent, std::vector<char>& onPath, std::vector<char>& seen,
-             const std::string& from) {
+             const std::string& from, int depth = 0) {
     if (index < 0 || size_t(index) >= m_model.nodes.size())
       fail(from, "node " + std::to_string(index) + " does not exist");
     const std::string at = "/nodes/" + std::to_string(index);
+    // The visit recurses: a chain of nodes deeper than any real model is refused.
+    if (depth > kMaxNodeDepth) fail(at, "the node hierarchy is more than " + std::to_string(kMaxNodeDepth) + " levels deep");
     if (onPath[index]) fail(at + "/children", "the node hierarchy has a cycle through node " + std::to_string(index));
     if (seen[index]) fail(at, "node " + std::to_string(index) + " has more than one parent");
     onPath[index] = seen[index] = 1;
@@ -444,7 +450,7 @@ class Reader {
       if (gl.range > 0) warnOnce("light range is ignored (lights fall off with the inverse square law)");
       m_out.lights.push_back(l);
     }
-    for (int child : n.children) visit(child, t, onPath, seen, at + "/children");
+    for (int child : n.children) visit(child, t, onPath, seen, at + "/children", depth + 1);
     onPath[index] = 0;
   }
 
@@ -529,11 +535,16 @@ GltfModel loadGltf(const std::string& path) {
   const bool binary = ext == ".glb" || bytes.compare(0, 4, "glTF") == 0;
   const std::string jsonText = binary ? glbJson(bytes, path) : bytes;
 
+  checkJsonNesting(jsonText, path);  // tinygltf walks extras and extensions recursively
   Json root;
   try {
     root = Json::parse(jsonText);
   } catch (const Json::parse_error& e) {
     throw InputError(path, "byte " + std::to_string(e.byte), "JSON syntax error");
+  } catch (const Json::exception& e) {
+    std::string what = e.what();
+    const auto bracket = what.find("] ");
+    throw InputError(path, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
   }
   if (!root.is_object()) throw InputError(path, "/", "expected a JSON object");
   for (const Rule& rule : kRules) checkRule(root, rule.path, 0, "", rule.kind, path);

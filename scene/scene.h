@@ -115,6 +115,10 @@ struct SceneDesc {
   std::vector<LightDesc> lights;
 };
 
+// JSON text nested deeper than `limit` arrays and objects is refused (an InputError naming the
+// byte) before any parser sees it: parsers and the code walking their trees recurse.
+void checkJsonNesting(const std::string& text, const std::string& file, int limit = 128);
+
 // Reads and validates a scene file. Any problem is an InputError naming the JSON path.
 SceneDesc parseSceneFile(const std::string& path);
 SceneDesc parseSceneText(const std::string& text, const std::string& path);

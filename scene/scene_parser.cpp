@@ -3,6 +3,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <algorithm>
 #include <set>
 #include <sstream>
 
@@ -26,13 +27,46 @@ const char* typeName(const Json& j) {
   }
 }
 
+// The known name closest to `key` by edit distance, if it is close enough to be a typo
+// (at most 2 edits, and fewer than half the key's letters); empty otherwise.
+std::string closestKey(const std::string& key, const std::vector<std::string>& known) {
+  std::string best;
+  size_t bestDistance = 3;
+  for (const std::string& k : known) {
+    // Optimal string alignment distance: insertions, deletions, substitutions and swaps of
+    // neighbouring letters ("flie" is one edit from "file").
+    std::vector<std::vector<size_t>> d(key.size() + 1, std::vector<size_t>(k.size() + 1));
+    for (size_t i = 0; i <= key.size(); ++i) d[i][0] = i;
+    for (size_t j = 0; j <= k.size(); ++j) d[0][j] = j;
+    for (size_t i = 1; i <= key.size(); ++i)
+      for (size_t j = 1; j <= k.size(); ++j) {
+        d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (key[i - 1] == k[j - 1] ? 0 : 1)});
+        if (i > 1 && j > 1 && key[i - 1] == k[j - 2] && key[i - 2] == k[j - 1])
+          d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    const size_t distance = d[key.size()][k.size()];
+    if (distance < bestDistance && 2 * distance < key.size()) {
+      bestDistance = distance;
+      best = k;
+    }
+  }
+  return best;
+}
+
+const std::vector<std::string> kTransformKeys = {"matrix", "translate", "rotate", "scale"};
+
 // Reads one JSON object, remembering which keys were used: finish() rejects the rest, so
-// a misspelled key is an error instead of a silently ignored setting.
+// a misspelled key is an error instead of a silently ignored setting. With the list of keys
+// the object may hold, a key outside it is reported at once, before any missing key (a
+// misspelled "flie" is named, not reported as a missing "file"), with the closest known key.
 class ObjectReader {
  public:
-  ObjectReader(const Json& j, std::string path, const std::string& file)
-      : m_json(j), m_path(std::move(path)), m_file(file) {
+  ObjectReader(const Json& j, std::string path, const std::string& file, std::vector<std::string> known = {})
+      : m_json(j), m_path(std::move(path)), m_file(file), m_known(std::move(known)) {
     if (!j.is_object()) fail(m_path, std::string("expected an object, found ") + typeName(j));
+    if (!m_known.empty())
+      for (auto it = m_json.begin(); it != m_json.end(); ++it)
+        if (std::find(m_known.begin(), m_known.end(), it.key()) == m_known.end()) unknownKey(it.key());
   }
 
   [[noreturn]] void fail(const std::string& path, const std::string& what) const {
@@ -117,13 +151,23 @@ class ObjectReader {
   const std::string& file() const { return m_file; }
   void finish() const {
     for (auto it = m_json.begin(); it != m_json.end(); ++it)
-      if (!m_used.count(it.key())) fail(at(it.key()), "unknown key '" + it.key() + "'");
+      if (!m_used.count(it.key())) unknownKey(it.key());
+  }
+  [[noreturn]] void unknownKey(const std::string& key) const {
+    std::vector<std::string> candidates;
+    for (const std::string& k : m_known)
+      if (k != key) candidates.push_back(k);
+    for (const std::string& k : m_used)
+      if (k != key) candidates.push_back(k);
+    const std::string close = closestKey(key, candidates);
+    fail(at(key), "unknown key '" + key + "'" + (close.empty() ? "" : " (did you mean '" + close + "'?)"));
   }
 
  private:
   const Json& m_json;
   std::string m_path;
   const std::string& m_file;
+  std::vector<std::string> m_known;
   std::set<std::string> m_used;
 };
 
@@ -177,7 +221,7 @@ Transform parseTransform(ObjectReader r) {
     t = Transform::scale(sv);
   }
   if (const Json* j = r.get("rotate")) {
-    ObjectReader rot(*j, r.at("rotate"), r.file());
+    ObjectReader rot(*j, r.at("rotate"), r.file(), {"axis", "degrees"});
     const auto axis = rot.vec3("axis");
     if (!axis) rot.fail(rot.at("axis"), "required key is missing");
     if (length(*axis) == 0) rot.fail(rot.at("axis"), "the rotation axis is zero");
@@ -275,18 +319,47 @@ bool isKnownIntegrator(const std::string& name) {
   return false;
 }
 
+void checkJsonNesting(const std::string& text, const std::string& file, int limit) {
+  int depth = 0;
+  bool inString = false;
+  for (size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    if (inString) {
+      if (c == '\\') ++i;
+      else if (c == '"') inString = false;
+      continue;
+    }
+    if (c == '"') inString = true;
+    else if (c == '[' || c == '{') {
+      if (++depth > limit)
+        throw InputError(file, "byte " + std::to_string(i + 1), "JSON nested more than " + std::to_string(limit) + " levels deep");
+    } else if (c == ']' || c == '}') {
+      --depth;
+    }
+  }
+}
+
 SceneDesc parseSceneText(const std::string& text, const std::string& path) {
+  checkJsonNesting(text, path);
   Json root;
   try {
     root = Json::parse(text);
+  } catch (const Json::out_of_range& e) {
+    // A number beyond double (1e400): nlohmann says which, but not where.
+    std::string what = e.what();
+    const auto bracket = what.find("] ");
+    throw InputError(path, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
   } catch (const Json::parse_error& e) {
     // e.byte is the 1-based offset of the error; report it as line and column.
     size_t line = 1, col = 1;
     for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
       if (text[i] == '\n') { ++line; col = 1; } else { ++col; }
     }
+    // "[json.exception.parse_error.101] parse error at line 1, column 18: syntax error while
+    // parsing value - invalid literal; last read: '"fov":N'": keep what follows the position.
     std::string what = e.what();
-    const auto colon = what.rfind(": ");
+    const auto column = what.find("column ");
+    const auto colon = what.find(": ", column == std::string::npos ? 0 : column);
     if (colon != std::string::npos) what = what.substr(colon + 2);
     throw InputError(path, "line " + std::to_string(line) + ", column " + std::to_string(col),
                      "JSON syntax error: " + what);
@@ -294,17 +367,19 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   const fs::path dir = fs::path(path).parent_path();
   SceneDesc scene;
   scene.path = path;
-  ObjectReader r(root, "", path);
-  if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path), scene.camera);
+  ObjectReader r(root, "", path,
+                 {"camera", "film", "integrator", "intersector", "meshes", "volumes", "materials", "lights"});
+  if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path, {"position", "look_at", "up", "fov", "gltf_camera"}), scene.camera);
   else scene.camera.frameScene = true;
   if (const Json* j = r.get("film")) {
-    ObjectReader f(*j, "/film", path);
-    scene.settings.width = f.integer("width", scene.settings.width, 1, 1 << 15);
-    scene.settings.height = f.integer("height", scene.settings.height, 1, 1 << 15);
+    ObjectReader f(*j, "/film", path, {"width", "height"});
+    scene.settings.width = f.integer("width", scene.settings.width, 1, 16384);
+    scene.settings.height = f.integer("height", scene.settings.height, 1, 16384);
     f.finish();
   }
   if (const Json* j = r.get("integrator")) {
-    ObjectReader in(*j, "/integrator", path);
+    ObjectReader in(*j, "/integrator", path,
+                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold"});
     scene.settings.integrator = in.string("type", scene.settings.integrator);
     if (!isKnownIntegrator(scene.settings.integrator))
       in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
@@ -328,7 +403,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     for (size_t i = 0; i < j->size(); ++i) {
       MeshDesc m;
       m.where = "/meshes/" + std::to_string(i);
-      ObjectReader mr((*j)[i], m.where, path);
+      ObjectReader mr((*j)[i], m.where, path, {"file", "shape", "transform", "material"});
       const bool hasFile = mr.has("file"), hasShape = mr.has("shape");
       if (hasFile == hasShape) mr.fail(m.where, "a mesh needs exactly one of \"file\" (glTF) and \"shape\"");
       if (hasFile) {
@@ -338,7 +413,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
       } else {
         m.shape = mr.choice("shape", "", {"sphere", "quad"}) == "sphere" ? MeshShape::Sphere : MeshShape::Quad;
       }
-      if (const Json* t = mr.get("transform")) m.transform = parseTransform(ObjectReader(*t, mr.at("transform"), path));
+      if (const Json* t = mr.get("transform")) m.transform = parseTransform(ObjectReader(*t, mr.at("transform"), path, kTransformKeys));
       m.material = materialRef(mr, m.materialWhere);
       mr.finish();
       scene.meshes.push_back(std::move(m));
@@ -348,19 +423,25 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     if (!j->is_object()) r.fail("/materials", std::string("expected an object of named materials, found ") + typeName(*j));
     for (auto it = j->begin(); it != j->end(); ++it) {
       if (it.key().empty()) r.fail("/materials", "a material needs a non-empty name");
-      scene.materials[it.key()] = parseMaterial(ObjectReader(it.value(), "/materials/" + it.key(), path));
+      scene.materials[it.key()] = parseMaterial(ObjectReader(it.value(), "/materials/" + it.key(), path,
+                                                             {"type", "color", "metallic", "roughness", "ior", "thin",
+                                                              "radiance", "two_sided"}));
     }
   }
   if (const Json* j = r.get("lights")) {
     if (!j->is_array()) r.fail("/lights", std::string("expected an array, found ") + typeName(*j));
     for (size_t i = 0; i < j->size(); ++i)
-      scene.lights.push_back(parseLight(ObjectReader((*j)[i], "/lights/" + std::to_string(i), path), dir));
+      scene.lights.push_back(parseLight(ObjectReader((*j)[i], "/lights/" + std::to_string(i), path,
+                                                          {"type", "position", "direction", "intensity", "irradiance",
+                                                           "radiance", "inner_angle", "outer_angle", "file"}),
+                                             dir));
   }
   if (const Json* j = r.get("volumes")) {
     if (!j->is_array()) r.fail("/volumes", std::string("expected an array, found ") + typeName(*j));
     for (size_t i = 0; i < j->size(); ++i) {
       const std::string vp = "/volumes/" + std::to_string(i);
-      ObjectReader vr((*j)[i], vp, path);
+      ObjectReader vr((*j)[i], vp, path,
+                      {"file", "procedural", "dims", "type", "endian", "origin", "spacing", "transform", "isosurfaces"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
@@ -390,7 +471,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
         if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
         v.layout.bigEndian = endian == "big";
       } else {
-        ObjectReader pr(*vr.get("procedural"), vr.at("procedural"), path);
+        ObjectReader pr(*vr.get("procedural"), vr.at("procedural"), path, {"field", "resolution"});
         const std::string name = pr.string("field", "");
         Field field;
         if (!pr.has("field")) pr.fail(pr.at("field"), "required key is missing");
@@ -404,6 +485,9 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
             if (!(*res)[k].is_number_integer()) pr.fail(kp, "expected a whole number");
             v.resolution[k] = int(pr.toNumber((*res)[k], kp, 2, 4096));
           }
+          // A procedural grid is float32 in memory: at most 2^30 samples (4 GiB).
+          if (double(v.resolution.x) * v.resolution.y * v.resolution.z > double(1 << 30))
+            pr.fail(pr.at("resolution"), "more than 2^30 samples (4 GiB of float32); e.g. 1024^3 is the most");
         }
         pr.finish();
       }
@@ -411,12 +495,13 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
       v.spacing = vr.vec3("spacing");
       if (v.spacing && !(v.spacing->x > 0 && v.spacing->y > 0 && v.spacing->z > 0))
         vr.fail(vr.at("spacing"), "spacing must be positive");
-      if (const Json* t = vr.get("transform")) v.transform = parseTransform(ObjectReader(*t, vr.at("transform"), path));
+      if (const Json* t = vr.get("transform")) v.transform = parseTransform(ObjectReader(*t, vr.at("transform"), path, kTransformKeys));
       const Json& isos = vr.require("isosurfaces");
       if (!isos.is_array() || isos.empty())
         vr.fail(vr.at("isosurfaces"), "expected a non-empty array of iso-surfaces");
       for (size_t k = 0; k < isos.size(); ++k) {
-        ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path);
+        ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path,
+                        {"value", "color", "material", "inside", "normals"});
         IsoSurfaceDesc iso;
         iso.value = ir.toNumber(ir.require("value"), ir.at("value"));
         iso.color = ir.rgb("color", 0, 1);
@@ -444,6 +529,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
 SceneDesc parseSceneFile(const std::string& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "scene file not found");
+  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a scene file");
   std::ifstream in(path);
   if (!in) throw InputError(path, "", "cannot open scene file");
   std::stringstream text;

@@ -60,6 +60,26 @@ Grid loadVolume(const VolumeDesc& desc) {
   return grid;
 }
 
+namespace {
+constexpr double kMaxCoordinate = 1e15;
+
+// The camera, wherever it came from (scene file, glTF node, framing), must give finite rays
+// that Embree accepts.
+void checkCamera(const CameraDesc& c, const SceneDesc& scene) {
+  const std::string where = scene.camera.gltfCamera.empty() ? "/camera" : "/camera/gltf_camera";
+  const Vec3d forward = c.lookAt - c.position;
+  for (const Vec3d& p : {c.position, c.lookAt})
+    for (int a = 0; a < 3; ++a)
+      if (!(std::fabs(p[a]) <= kMaxCoordinate))
+        throw InputError(scene.path, where, "camera coordinate " + std::to_string(p[a]) + " is beyond +-1e15");
+  const double f = length(forward), u = length(c.up);
+  if (!(f > 0) || !std::isfinite(f)) throw InputError(scene.path, where, "the camera has no view direction");
+  if (!(u > 0) || !(length(cross(forward / f, c.up / u)) > 1e-6))
+    throw InputError(scene.path, where, "the camera's up direction is zero or parallel to the view direction");
+  if (!(c.fov > 0 && c.fov < 180)) throw InputError(scene.path, where, "field of view " + std::to_string(c.fov) + " is not in (0, 180)");
+}
+}  // namespace
+
 CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov) {
   // From the front (+z, the side glTF's default camera looks from), a little to the right and
   // above, far enough for the bounding sphere to fit the vertical field of view (the narrower
@@ -94,7 +114,14 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
     rtcGetSceneBounds(m_scene, &b);
     const bool bounded = b.lower_x <= b.upper_x;
     const Vec3d lower{b.lower_x, b.lower_y, b.lower_z}, upper{b.upper_x, b.upper_y, b.upper_z};
+    // Embree asserts on rays that start beyond ~1.8e18 (and float precision is long gone far
+    // before): coordinates are bounded well inside that, for geometry and the camera.
+    for (const double c : {lower.x, lower.y, lower.z, upper.x, upper.y, upper.z})
+      if (bounded && !(std::fabs(c) <= kMaxCoordinate))
+        throw InputError(scene.path, "", "the scene reaches coordinate " + std::to_string(c) +
+                                             ": coordinates beyond +-1e15 are not supported");
     if (m_camera.frameScene && bounded) m_camera = frameBounds(lower, upper);
+    checkCamera(m_camera, scene);
     // Lights are chosen by power; distant ones by what falls on the scene (its bounding
     // sphere). Without any power (black lights) the choice is uniform.
     const float radius = bounded ? float(0.5 * length(upper - lower)) : 1.f;

@@ -163,6 +163,69 @@ TEST(Cli, ExposureTonemapAndAlpha) {
   EXPECT_GT(b[centre * 3], p[centre * 3]);  // two stops brighter
 }
 
+// Hostile flags and scenes (issue 14): out-of-range flags are errors, never ignored; limits on
+// the film and procedural grids hold before any allocation; JSON that would make a parser or
+// a tree walk recurse without end is refused; misspelled keys are named with a suggestion;
+// cameras and directories that would crash Embree or the writer are bad input.
+TEST(Cli, HostileFlagsAndScenesAreBadInput) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/s.json";
+  test::writeText(path, scene(R"({"procedural": {"field": "sphere", "resolution": [8,8,8]}, "isosurfaces": [{"value": 0.5}]})"));
+  expectBadInput(dir, path + " --threads 65537", "--threads: Value 65537 not in range 0 to 1024");
+  expectBadInput(dir, path + " --threads -5", "--threads: Value -5 not in range");
+  expectBadInput(dir, path + " --spp 0", "--spp: Value 0 not in range");
+  expectBadInput(dir, path + " --max-depth 0", "--max-depth: Value 0 not in range");
+  expectBadInput(dir, path + " --seed -7", "--seed: Value -7 not in range");
+  expectBadInput(dir, path + " --resolution 99999x99999", "--resolution: each side must be at most 16384 pixels");
+  expectBadInput(dir, path + " --resolution 16384x16384", "--resolution: 16384x16384 is more than 33554432 pixels");
+  expectBadInput(dir, path + " --nthreads 2", "isotrace render: unexpected arguments '--nthreads 2'");
+  auto write = [&](const std::string& name, const std::string& text) {
+    test::writeText(dir + "/" + name, text);
+    return dir + "/" + name;
+  };
+  expectBadInput(dir, write("film.json", R"({"film": {"width": 32768, "height": 32768}})"),
+                 "/film/width: value 32768 is out of range [1, 16384]");
+  expectBadInput(dir, write("proc.json", R"({"volumes": [{"procedural": {"field": "sphere", "resolution": [4096, 4096, 4096]},
+                                             "isosurfaces": [{"value": 0.5}]}]})"),
+                 "/volumes/0/procedural/resolution: more than 2^30 samples");
+  expectBadInput(dir, write("big.json", R"({"camera": {"fov": 1e400}})"), "JSON: number overflow parsing '1e400'");
+  expectBadInput(dir, write("nan.json", R"({"camera": {"fov": NaN}})"),
+                 "line 1, column 20: JSON syntax error: syntax error while parsing value - invalid literal; last read: '\"fov\": N'");
+  expectBadInput(dir, write("flie.json", R"({"volumes": [{"flie": "x.raw", "isosurfaces": [{"value": 1}]}]})"),
+                 "/volumes/0/flie: unknown key 'flie' (did you mean 'file'?)");
+  expectBadInput(dir, write("deep.json", "{\"camera\": " + std::string(100000, '[') + std::string(100000, ']') + "}"),
+                 "deep.json: byte 139: JSON nested more than 128 levels deep");
+  expectBadInput(dir, write("far.json", R"({"camera": {"position": [1e20, 0, 0]}, "meshes": [{"shape": "quad"}]})"),
+                 "far.json: /camera: camera coordinate 100000000000000000000.000000 is beyond +-1e15");
+  fs::create_directories(dir + "/adir");
+  expectBadInput(dir, dir + "/adir", "adir: is a directory, not a scene file");
+  // glTF: a node chain 100,000 deep, and extras nested 100,000 deep (both overflowed the stack).
+  std::string chain = R"({"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": [)";
+  for (int i = 0; i < 100000; ++i) chain += i + 1 < 100000 ? "{\"children\": [" + std::to_string(i + 1) + "]}," : "{}";
+  write("chain.gltf", chain + "]}");
+  expectBadInput(dir, write("chain.json", R"({"meshes": [{"file": "chain.gltf"}]})"),
+                 "chain.gltf: /nodes/1001: the node hierarchy is more than 1000 levels deep");
+  write("extras.gltf", R"({"asset": {"version": "2.0"}, "extras": )" + std::string(100000, '[') + std::string(100000, ']') + "}");
+  expectBadInput(dir, write("extras.json", R"({"meshes": [{"file": "extras.gltf"}]})"), "extras.gltf: byte 168: JSON nested more than 128 levels deep");
+  // Outputs: a directory, a directory nothing can be written in (checked before rendering).
+  const auto toDir = runIsotrace("render " + path + " -o " + dir + "/adir");
+  EXPECT_EQ(toDir.status, 2);
+  EXPECT_NE(toDir.err.find("adir: is a directory; name the output file"), std::string::npos) << toDir.err;
+  const auto unwritable = runIsotrace("render " + path + " -o /proc/isotrace-test.png");
+  EXPECT_EQ(unwritable.status, 2);
+  EXPECT_NE(unwritable.err.find("/proc/isotrace-test.png: cannot write in its directory"), std::string::npos) << unwritable.err;
+  // The command line itself.
+  const auto version = runIsotrace("--version");
+  EXPECT_EQ(version.status, 0);
+  EXPECT_NE(version.out.find("isotrace 0."), std::string::npos) << version.out;
+  EXPECT_NE(version.out.find("Embree 3."), std::string::npos) << version.out;
+  EXPECT_NE(version.out.find("OpenVDB"), std::string::npos) << version.out;
+  const auto unknown = runIsotrace("foo");
+  EXPECT_EQ(unknown.status, 2);
+  EXPECT_NE(unknown.err.find("unknown command 'foo' (commands: render, info, watertight, bench, mesh"), std::string::npos)
+      << unknown.err;
+}
+
 // `watertight` and `bench` write the JSON the docs describe; the totals are the sums of the
 // surfaces; bad flags are bad input.
 TEST(Cli, WatertightAndBenchJson) {
@@ -481,6 +544,25 @@ TEST(Cli, SigintWritesTheFinishedSamplesAndExits130) {
 // `isotrace mesh` writes a glTF the loader reads back, in world space (origin, spacing and the
 // transform applied), with the surface's material; bad flags and empty surfaces are bad input
 // and leave no file.
+// SIGTERM stops a render like SIGINT: the image of the samples so far is written whole, the
+// exit status is 130, no temporary file is left.
+TEST(Cli, SigtermWritesTheFinishedSamples) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 100000 " +
+                          "--resolution 64x48 --quiet -o " + dir + "/t.png >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep 1.5; "
+                          "kill -TERM $pid; wait $pid; echo $?";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_TRUE(p);
+  char buf[64] = {0};
+  ASSERT_TRUE(std::fgets(buf, sizeof buf, p));
+  pclose(p);
+  EXPECT_EQ(std::atoi(buf), 130);
+  EXPECT_TRUE(fs::exists(dir + "/t.png"));
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+}
+
 TEST(Cli, MeshExportsTheSurfaceInWorldSpace) {
   const std::string dir = test::scratchDir();
   const std::string path = dir + "/m.json";

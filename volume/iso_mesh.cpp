@@ -29,6 +29,8 @@ Vec3d shadingGradient(const Grid& grid, const Vec3d& p) {
 
 }  // namespace
 
+const char* openVdbVersion() { return OPENVDB_LIBRARY_VERSION_STRING; }
+
 IsoMesh extractIsoMesh(const Grid& grid, double iso) {
   openvdb::initialize();
   const Vec3i d = grid.dims();

@@ -23,4 +23,7 @@ struct IsoMesh {
 // against the background outside the box are dropped).
 IsoMesh extractIsoMesh(const Grid& grid, double iso);
 
+// The version of the OpenVDB library this was built with (for isotrace --version).
+const char* openVdbVersion();
+
 }  // namespace iso
