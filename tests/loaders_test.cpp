@@ -224,6 +224,52 @@ TEST_F(SyntheticFiles, RawStraightIntoTheGrid) {
   expectInputError(dir + "/large_65536x65536x65536_uint8.raw", "data has 48 bytes but 65536x65536x65536 uint8 needs");
 }
 
+// Hostile headers (issue 14): sizes, counts, skips and file ranges are checked before they
+// are used to allocate or loop; compressed streams stop at what the header asks for; ASCII
+// values must be finite and fit their type, and the bad one is named.
+TEST_F(SyntheticFiles, HostileHeadersAreNamedNotFollowed) {
+  auto nrrd = [&](const std::string& name, const std::string& fields, const std::string& data = "") {
+    test::writeBytes(dir + "/" + name, "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 3 2\nendian: little\n" + fields +
+                                           (data.empty() ? "" : "\n" + data));
+    return dir + "/" + name;
+  };
+  // File ranges: numbers that overflow, that are no numbers, more files than slices, huge widths.
+  expectInputError(nrrd("a.nhdr", "encoding: raw\ndata file: s%d.raw 1 2147483647 1\n"),
+                   "line 7: '2147483647' is not a whole number from -1e9 to 1e9");
+  expectInputError(nrrd("b.nhdr", "encoding: raw\ndata file: s%d.raw a b c\n"), "line 7: 'a' is not a whole number");
+  expectInputError(nrrd("c.nhdr", "encoding: raw\ndata file: s%d.raw 1 1000 1\n"), "line 7: 1000 data files for 2 slices");
+  expectInputError(nrrd("d.nhdr", "encoding: raw\ndata file: s%0100000000d.raw 1 2 1\n"), "a field width above 32");
+  // Skips: a line skip past the data ends (it used to loop 1e12 times), a byte skip of 1e300.
+  expectInputError(nrrd("e.nrrd", "encoding: raw\nline skip: 1000000000000\n", le), "line skip runs past the end of the data");
+  expectInputError(nrrd("f.nrrd", "encoding: raw\nline skip: 1e20\n", le), "line 7: line skip must be a whole number from 0 to 1e15");
+  expectInputError(nrrd("g.nrrd", "encoding: raw\nbyte skip: 1e300\n", le), "line 7: byte skip must be a whole number from -1 to 1e15");
+  // A gzip bomb inflates no further than the header's 48 bytes.
+  expectInputError(nrrd("h.nrrd", "encoding: gzip\n", gzip(std::string(1 << 22, '\0'))),
+                   "decompressed data is larger than the 48 bytes the header asks for");
+  // A header asking for 10^15 bytes from small data files allocates nothing.
+  test::writeBytes(dir + "/s1.raw", le);
+  test::writeBytes(dir + "/huge.nhdr", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 100000 100000 100000\nencoding: raw\n"
+                                       "data file: s%d.raw 1 1 1\n");
+  expectInputError(dir + "/huge.nhdr", "s1.raw: data has 48 bytes but the header");
+  // ASCII: a NaN, a value out of range for the type, and a count the text cannot hold.
+  expectInputError(nrrd("i.nrrd", "encoding: ascii\n", "1 2 nan 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24"),
+                   "value 3 of 24: 'nan' is not a finite number");
+  expectInputError(nrrd("j.nrrd", "encoding: ascii\n", "1 2 3 40000 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24"),
+                   "value 4 of 24: 40000 is out of range for int16");
+  test::writeBytes(dir + "/k.vtk", "# vtk DataFile Version 3.0\nx\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 1000 1000 1000\n"
+                                   "SPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 1000000000\nSCALARS s float\nLOOKUP_TABLE default\n1 2 3\n");
+  expectInputError(dir + "/k.vtk", "ASCII data of 6 bytes cannot hold the 1000000000 values the header asks for");
+  // MetaImage: a compressed stream larger than DimSize, a HeaderSize past the data.
+  test::writeBytes(dir + "/m.raw.gz", gzip(std::string(1 << 22, '\0')));
+  test::writeBytes(dir + "/m.mhd", "ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_SHORT\n"
+                                   "CompressedData = True\nElementDataFile = m.raw.gz\n");
+  expectInputError(dir + "/m.mhd", "decompressed data is larger than the 48 bytes the header asks for");
+  test::writeBytes(dir + "/n.raw", le);
+  test::writeBytes(dir + "/n.mhd", "ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_SHORT\n"
+                                   "HeaderSize = 1000\nElementDataFile = n.raw\n");
+  expectInputError(dir + "/n.mhd", "HeaderSize runs past the end of the data");
+}
+
 TEST(Loaders, TruncatedRealGzipIsAnError) {
   const std::string dir = test::scratchDir();
   std::ifstream in(dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz"), std::ios::binary);

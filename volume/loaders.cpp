@@ -101,9 +101,15 @@ void inflateStream(const Bytes& in, const std::string& file, Sink&& sink) {
   }
 }
 
-Bytes inflateBytes(const Bytes& in, const std::string& file) {
+// Inflates at most `limit` bytes: a stream that grows past what the header asks for is an
+// error within 64 KiB of the limit (a gzip bomb is never inflated whole).
+Bytes inflateBytes(const Bytes& in, const std::string& file, size_t limit) {
   Bytes out;
-  inflateStream(in, file, [&](const uint8_t* p, size_t n) { out.insert(out.end(), p, p + n); });
+  inflateStream(in, file, [&](const uint8_t* p, size_t n) {
+    if (n > limit - out.size())
+      throw InputError(file, "", "decompressed data is larger than the " + std::to_string(limit) + " bytes the header asks for");
+    out.insert(out.end(), p, p + n);
+  });
   return out;
 }
 
@@ -213,14 +219,34 @@ void inflateInto(const Bytes& in, uint8_t* out, size_t expected, const Vec3i& di
 }
 
 // Parses whitespace-separated numbers (ASCII encodings) into the bytes of the scalar type.
+// Every value must be a finite number within the range of the type; the count is checked
+// against the text's length before anything is allocated (each value takes two characters at
+// least, with its separator).
 Bytes asciiToBytes(const std::string& text, ScalarType type, size_t count, const std::string& file) {
+  if (count > text.size() / 2 + 1)
+    throw InputError(file, "", "ASCII data of " + std::to_string(text.size()) + " bytes cannot hold the " +
+                                   std::to_string(count) + " values the header asks for");
   Bytes out(count * scalarTypeSize(type));
   std::istringstream in(text);
+  double lo = 0, hi = 0;
+  switch (type) {
+    case ScalarType::UInt8: hi = 255; break;
+    case ScalarType::UInt16: hi = 65535; break;
+    case ScalarType::Int16: lo = -32768, hi = 32767; break;
+    case ScalarType::Float32: lo = -3.4028234663852886e38, hi = 3.4028234663852886e38; break;
+  }
   for (size_t i = 0; i < count; ++i) {
-    double v;
-    if (!(in >> v))
+    std::string token;
+    if (!(in >> token))
       throw InputError(file, "", "ASCII data ends after " + std::to_string(i) + " of " +
                                      std::to_string(count) + " values");
+    char* end = nullptr;
+    const double v = std::strtod(token.c_str(), &end);
+    const std::string at = "value " + std::to_string(i + 1) + " of " + std::to_string(count);
+    if (end == token.c_str() || *end != 0) throw InputError(file, at, "'" + token.substr(0, 32) + "' is not a number");
+    if (!std::isfinite(v)) throw InputError(file, at, "'" + token.substr(0, 32) + "' is not a finite number");
+    if (v < lo || v > hi)
+      throw InputError(file, at, token.substr(0, 32) + " is out of range for " + scalarTypeName(type));
     switch (type) {
       case ScalarType::UInt8: out[i] = uint8_t(v); break;
       case ScalarType::UInt16: { uint16_t x = uint16_t(v); std::memcpy(&out[2 * i], &x, 2); break; }
@@ -290,6 +316,8 @@ std::string formatSliceName(const std::string& pattern, long index, const std::s
   std::string number = std::to_string(index);
   const std::string width = m[1].str();
   if (!width.empty()) {
+    if (width.size() > 2 || std::stoul(width) > 32)
+      throw InputError(file, where, "data file pattern '" + pattern.substr(0, 64) + "': a field width above 32");
     const size_t w = size_t(std::stoul(width));
     const char pad = width[0] == '0' ? '0' : ' ';
     if (number.size() < w) number = std::string(w - number.size(), pad) + number;
@@ -377,24 +405,31 @@ Grid loadNrrd(const std::string& path) {
     auto o = parseNumbers(fields["space origin"].second, path, where("space origin"), 3);
     origin = {o[0], o[1], o[2]};
   }
-  long lineSkip = 0, byteSkip = 0;
-  if (fields.count("line skip")) lineSkip = long(parseNumbers(fields["line skip"].second, path, where("line skip"), 1)[0]);
-  if (fields.count("byte skip")) byteSkip = long(parseNumbers(fields["byte skip"].second, path, where("byte skip"), 1)[0]);
+  // Skips are whole numbers no larger than a file can be (-1 for byte skip: the data is at the end).
+  auto skip = [&](const char* key, double lowest) -> long {
+    if (!fields.count(key)) return 0;
+    const double v = parseNumbers(fields[key].second, path, where(key), 1)[0];
+    if (!(v >= lowest && v <= 1e15) || v != std::floor(v))
+      throw InputError(path, where(key), std::string(key) + " must be a whole number from " +
+                                             (lowest < 0 ? "-1" : "0") + " to 1e15");
+    return long(v);
+  };
+  const long lineSkip = skip("line skip", 0), byteSkip = skip("byte skip", -1);
   if (byteSkip == -1 && enc != Enc::Raw)
     throw InputError(path, where("byte skip"), "'byte skip: -1' is only valid with raw encoding");
 
-  const size_t count = size_t(dims.x) * dims.y * dims.z;
-  const size_t totalBytes = count * scalarTypeSize(type);
+  const size_t totalBytes = checkedBytes(dims, type, path);
 
   // Decodes one data chunk (the attached data, or one data file) after its skips.
   auto decode = [&](Bytes chunk, const std::string& chunkName, size_t expectBytes) -> Bytes {
     size_t p = 0;
     for (long l = 0; l < lineSkip; ++l) {
+      if (p >= chunk.size()) throw InputError(chunkName, "", "line skip runs past the end of the data");
       while (p < chunk.size() && chunk[p] != '\n') ++p;
       if (p < chunk.size()) ++p;
     }
     chunk.erase(chunk.begin(), chunk.begin() + std::min(p, chunk.size()));
-    if (enc == Enc::Gzip) chunk = inflateBytes(chunk, chunkName);
+    if (enc == Enc::Gzip) chunk = inflateBytes(chunk, chunkName, expectBytes + size_t(std::max(byteSkip, 0L)));
     if (byteSkip == -1) {
       if (chunk.size() < expectBytes)
         throw InputError(chunkName, "", "data has " + std::to_string(chunk.size()) +
@@ -433,11 +468,22 @@ Grid loadNrrd(const std::string& path) {
       files = listFiles;
       if (files.empty()) throw InputError(path, w, "'data file: LIST' is followed by no file names");
     } else if (tokens.size() >= 4 && value.find('%') != std::string::npos) {
-      const long first = std::stol(tokens[1]), last = std::stol(tokens[2]), step = std::stol(tokens[3]);
-      if (step == 0 || (last - first) / step < 0)
-        throw InputError(path, w, "empty or endless file range");
-      for (long i = first; step > 0 ? i <= last : i >= last; i += step)
-        files.push_back(formatSliceName(tokens[0], i, path, w));
+      // "PATTERN MIN MAX STEP": whole numbers, and no more files than slices.
+      long long range[3];
+      for (int k = 0; k < 3; ++k) {
+        char* end = nullptr;
+        errno = 0;
+        range[k] = std::strtoll(tokens[size_t(k) + 1].c_str(), &end, 10);
+        if (end == tokens[size_t(k) + 1].c_str() || *end != 0 || errno == ERANGE || std::llabs(range[k]) > 1000000000LL)
+          throw InputError(path, w, "'" + tokens[size_t(k) + 1].substr(0, 32) +
+                                        "' is not a whole number from -1e9 to 1e9 (data file: PATTERN MIN MAX STEP)");
+      }
+      const long long first = range[0], last = range[1], step = range[2];
+      if (step == 0 || (last - first) / step < 0) throw InputError(path, w, "empty or endless file range");
+      const long long n = (last - first) / step + 1;
+      if (n > dims.z) throw InputError(path, w, std::to_string(n) + " data files for " + std::to_string(dims.z) + " slices");
+      for (long long i = first; step > 0 ? i <= last : i >= last; i += step)
+        files.push_back(formatSliceName(tokens[0], long(i), path, w));
     } else {
       files.push_back(value);
     }
@@ -445,10 +491,11 @@ Grid loadNrrd(const std::string& path) {
       throw InputError(path, w, std::to_string(files.size()) + " data files do not divide the " +
                                     std::to_string(totalBytes) + " bytes of the volume evenly");
     const size_t per = totalBytes / files.size();
-    data.reserve(totalBytes);
     for (const auto& f : files) {
       const std::string full = (dir / f).lexically_normal().string();
       Bytes part = decode(readFile(full), full, per);
+      // Reserved once a file has proved its size: the header alone allocates nothing.
+      if (data.empty()) data.reserve(totalBytes);
       data.insert(data.end(), part.begin(), part.end());
     }
   }
@@ -528,12 +575,20 @@ Grid loadMetaImage(const std::string& path) {
     const std::string full = (fs::path(path).parent_path() / dataFile).lexically_normal().string();
     data = readFile(full);
   }
-  if (compressed) data = inflateBytes(data, path);
+  const size_t need = checkedBytes(dims, type, path);
+  long skip = 0;
   if (fields.count("HeaderSize") && dataFile != "LOCAL") {
-    const long skip = long(parseNumbers(fields["HeaderSize"].second, path, where("HeaderSize"), 1)[0]);
-    const size_t need = size_t(dims.x) * dims.y * dims.z * scalarTypeSize(type);
+    const double v = parseNumbers(fields["HeaderSize"].second, path, where("HeaderSize"), 1)[0];
+    if (!(v >= -1 && v <= 1e15) || v != std::floor(v))
+      throw InputError(path, where("HeaderSize"), "HeaderSize must be a whole number from -1 to 1e15");
+    skip = long(v);
+  }
+  // A compressed stream may hold at most the header's bytes (after a known skip).
+  if (compressed) data = inflateBytes(data, path, skip == -1 ? need * 2 + (1 << 20) : need + size_t(skip));
+  if (skip != 0) {
     if (skip == -1 && data.size() >= need) data.erase(data.begin(), data.end() - long(need));
-    else if (skip > 0 && size_t(skip) <= data.size()) data.erase(data.begin(), data.begin() + skip);
+    else if (skip > 0 && size_t(skip) > data.size()) throw InputError(path, where("HeaderSize"), "HeaderSize runs past the end of the data");
+    else if (skip > 0) data.erase(data.begin(), data.begin() + skip);
   }
   Grid g = makeGrid(dims, type, data, bigEndian, path);
   g.setOrigin(origin);
