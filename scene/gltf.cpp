@@ -90,13 +90,16 @@ bool hasKind(const Json& j, Kind kind) {
     return true;
   };
   switch (kind) {
-    case Kind::Int: return j.is_number_integer();
+    // Every integer of glTF is an index, a count, an offset or an enum: none is negative (and
+    // tinygltf reads -1 as "absent", so a -5 would otherwise pass silently).
+    case Kind::Int: return j.is_number_unsigned() || (j.is_number_integer() && j.get<long long>() >= 0);
     case Kind::Number: return j.is_number();
     case Kind::Bool: return j.is_boolean();
     case Kind::String: return j.is_string();
     case Kind::Object: return j.is_object();
     case Kind::Array: return j.is_array();
-    case Kind::IntArray: return all([](const Json& e) { return e.is_number_integer(); });
+    case Kind::IntArray:
+      return all([](const Json& e) { return e.is_number_unsigned() || (e.is_number_integer() && e.get<long long>() >= 0); });
     case Kind::NumberArray: return all([](const Json& e) { return e.is_number(); });
   }
   return false;
@@ -104,13 +107,13 @@ bool hasKind(const Json& j, Kind kind) {
 
 const char* kindName(Kind kind) {
   switch (kind) {
-    case Kind::Int: return "a whole number";
+    case Kind::Int: return "a whole number >= 0";
     case Kind::Number: return "a number";
     case Kind::Bool: return "true or false";
     case Kind::String: return "a string";
     case Kind::Object: return "an object";
     case Kind::Array: return "an array";
-    case Kind::IntArray: return "an array of whole numbers";
+    case Kind::IntArray: return "an array of whole numbers >= 0";
     case Kind::NumberArray: return "an array of numbers";
   }
   return "?";
@@ -232,8 +235,9 @@ class Reader {
     const int stride = a.ByteStride(bv);
     if (stride <= 0) fail(bvAt + "/byteStride", "invalid byte stride");
     const size_t element = size_t(tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType))) * components;
-    if (a.count > 0 && (a.byteOffset > bv.byteLength ||
-                        (a.count - 1) * size_t(stride) + element > bv.byteLength - a.byteOffset))
+    // In this order, nothing can wrap: (count - 1) * stride is compared by division.
+    if (a.count > 0 && (a.byteOffset > bv.byteLength || element > bv.byteLength - a.byteOffset ||
+                        (a.count - 1) > (bv.byteLength - a.byteOffset - element) / size_t(stride)))
       fail(at, std::to_string(a.count) + " elements do not fit in buffer view " + std::to_string(a.bufferView));
     View v;
     v.data = m_model.buffers[bv.buffer].data.data() + bv.byteOffset + a.byteOffset;
@@ -548,6 +552,22 @@ GltfModel loadGltf(const std::string& path) {
   }
   if (!root.is_object()) throw InputError(path, "/", "expected a JSON object");
   for (const Rule& rule : kRules) checkRule(root, rule.path, 0, "", rule.kind, path);
+  // External files are checked here, where the JSON path is known (tinygltf would read a
+  // directory as a file of undefined size).
+  for (const char* list : {"buffers", "images"}) {
+    if (!root.contains(list)) continue;
+    for (size_t i = 0; i < root[list].size(); ++i) {
+      const Json& item = root[list][i];
+      if (!item.contains("uri")) continue;
+      const std::string uri = item["uri"].get<std::string>();
+      if (uri.rfind("data:", 0) == 0 || uri.find('%') != std::string::npos) continue;  // inline, or encoded
+      const fs::path file = fs::path(path).parent_path() / uri;
+      const std::string at = "/" + std::string(list) + "/" + std::to_string(i) + "/uri";
+      std::error_code ec;
+      if (fs::is_directory(file, ec)) throw InputError(path, at, "'" + uri + "' is a directory");
+      if (!fs::exists(file, ec)) throw InputError(path, at, "'" + uri + "': file not found");
+    }
+  }
 
   tinygltf::TinyGLTF loader;
   loader.SetImageLoader(keepEncoded, nullptr);

@@ -27,6 +27,8 @@ int wrapIndex(int i, int n, TextureWrap wrap) {
   return ((i % n) + n) % n;
 }
 
+constexpr size_t kMaxTexels = size_t(1) << 25;
+
 // Reads all of `in` as float RGBA, linearising sRGB 8-bit colour if asked.
 Texture readImage(OIIO::ImageInput& in, const std::string& name, bool srgb, std::vector<Vec4f>& texels,
                   int& width, int& height) {
@@ -34,8 +36,14 @@ Texture readImage(OIIO::ImageInput& in, const std::string& name, bool srgb, std:
   width = spec.width;
   height = spec.height;
   const int channels = spec.nchannels;
-  if (width <= 0 || height <= 0 || channels <= 0 || size_t(width) * height > (size_t(1) << 28))
-    throw InputError(name, "", "image has an unusable size");
+  // The memory budget of one image: 2^25 texels (e.g. 8192x4096) of float RGBA, 512 MiB, plus
+  // the decoded channels while converting. Checked from the header, before decoding.
+  if (width <= 0 || height <= 0 || channels <= 0 || channels > 16)
+    throw InputError(name, "", "image has an unusable size (" + std::to_string(width) + "x" + std::to_string(height) +
+                                   ", " + std::to_string(channels) + " channels)");
+  if (size_t(width) * size_t(height) > kMaxTexels)
+    throw InputError(name, "", "image of " + std::to_string(width) + "x" + std::to_string(height) +
+                                   " is more than 2^25 texels (e.g. 8192x4096), the limit of one texture");
   std::vector<float> data(size_t(width) * height * channels);
   if (!in.read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data()))
     throw InputError(name, "", "cannot decode image: " + in.geterror());

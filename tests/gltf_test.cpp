@@ -259,6 +259,17 @@ TEST(Gltf, BadFilesAreRefusedWithOneLine) {
   test::writeText(dir + "/syntax.gltf", "{\"asset\": ");
   expectRefused(dir, "syntax.gltf", "JSON syntax error");
   expectRefused(dir, "absent.glb", "glTF file not found");
+  // Issue 14: negative indices (tinygltf reads -1 as "absent"), a count whose byte span wraps
+  // 64 bits, a buffer naming a directory.
+  test::writeText(dir + "/negative.gltf", TriangleFile::json("", R"([{"mesh": -3}])"));
+  expectRefused(dir, "negative.gltf", "/nodes/0/mesh: expected a whole number >= 0");
+  std::string wrap = TriangleFile::json("");
+  wrap.replace(wrap.find("\"count\": 3"), 10, "\"count\": 4611686018427387905");
+  test::writeText(dir + "/wrap.gltf", wrap);
+  expectRefused(dir, "wrap.gltf", "/accessors/0: 4611686018427387905 elements do not fit in buffer view 0");
+  fs::create_directories(dir + "/adir");
+  test::writeText(dir + "/dir.gltf", TriangleFile::json("", R"([{"mesh": 0}])", "adir"));
+  expectRefused(dir, "dir.gltf", "/buffers/0/uri: 'adir' is a directory");
 }
 
 // One ray known to reach the mesh first and one known to reach the iso-surface first.
