@@ -1,0 +1,27 @@
+// libFuzzer target: the volume readers. The first byte picks the container (and, for raw,
+// the layout); the rest is the file. Bad input must be an InputError.
+#include <cstdint>
+#include <string>
+
+#include "fuzz/fuzz_util.h"
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  if (size < 1) return 0;
+  static const char* names[] = {"v.nrrd", "v.nhdr", "v.mhd", "v.vtk", "v_8x4x2_uint8.raw", "v_4x4x4_float32.raw.gz",
+                                "v_3x3x3_int16.raw", "v.raw"};
+  const std::string name = names[data[0] % 8];
+  iso::RawLayout layout;
+  if (name == "v.raw") {  // a layout from the scene: small dims, type from the first byte
+    layout.dims = iso::Vec3i{2 + (data[0] >> 3 & 3), 3, 2};
+    layout.type = data[0] & 0x20 ? iso::ScalarType::UInt16 : iso::ScalarType::Float32;
+    layout.bigEndian = data[0] & 0x40;
+  }
+  const std::string path = iso::fuzz::scratchFile(name, data + 1, size - 1);
+  try {
+    iso::loadVolumeFile(path, layout);
+  } catch (const iso::InputError&) {
+  }
+  return 0;
+}
