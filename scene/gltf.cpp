@@ -157,6 +157,17 @@ std::string glbJson(const std::string& bytes, const std::string& file) {
   if (u32(16) != 0x4E4F534A) throw InputError(file, "byte 16", "the first chunk is not JSON");
   if (size_t(20) + jsonLength > bytes.size())
     throw InputError(file, "byte 12", "file is truncated inside the JSON chunk");
+  if (jsonLength % 4 != 0) throw InputError(file, "byte 12", "JSON chunk length " + std::to_string(jsonLength) + " is not a multiple of 4");
+  // The BIN chunk, if any, must lie inside the file (tinygltf reports an oversized one as
+  // "not aligned to a 4-byte boundary").
+  const size_t bin = 20 + size_t(jsonLength);
+  if (bin + 8 <= bytes.size()) {
+    const uint32_t binLength = u32(bin);
+    if (bin + 8 + size_t(binLength) > bytes.size())
+      throw InputError(file, "byte " + std::to_string(bin), "the BIN chunk of " + std::to_string(binLength) +
+                                                              " bytes runs past the end of the file (" +
+                                                              std::to_string(bytes.size()) + " bytes)");
+  }
   return bytes.substr(20, jsonLength);
 }
 

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include <OpenImageIO/imageio.h>
 #include <algorithm>
@@ -561,6 +562,38 @@ TEST(Cli, OversizedImagesAreRefusedFromTheirHeader) {
   const auto r = runIsotrace("info " + dir + "/s.json");
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.err.find("big.png: image of 8193x4097 is more than 2^25 texels"), std::string::npos) << r.err;
+}
+
+// PNG chunks that libpng would allocate or inflate whole are checked first: a chunk longer
+// than the file (found by the fuzzer: this 1.6 KB file took 2.3 GB inside OpenImageIO), and an
+// ICC profile that inflates beyond 16 MiB.
+TEST(Cli, HostilePngChunksAreRefused) {
+  const std::string dir = test::scratchDir();
+  const std::string source = ISOTRACE_SOURCE_DIR;
+  test::writeText(dir + "/a.json", R"({"meshes": [{"shape": "quad"}], "lights": [{"type": "environment", "file": ")" +
+                                       source + R"(/tests/data/hostile/itxt_past_end.png"}]})");
+  const auto a = runIsotrace("info " + dir + "/a.json");
+  EXPECT_EQ(a.status, 2);
+  EXPECT_NE(a.err.find("itxt_past_end.png: byte 1103: PNG chunk 'iTXt' runs past the end of the image"), std::string::npos)
+      << a.err;
+  // A PNG whose iCCP chunk holds 32 MiB of zeros, deflated.
+  const std::string zeros(32 << 20, '\0');
+  std::string z(compressBound(uLong(zeros.size())), '\0');
+  uLongf zn = uLongf(z.size());
+  compress2(reinterpret_cast<Bytef*>(z.data()), &zn, reinterpret_cast<const Bytef*>(zeros.data()), uLong(zeros.size()), 9);
+  z.resize(zn);
+  auto chunk = [](const std::string& type, const std::string& data) {
+    const uint32_t n = uint32_t(data.size());
+    std::string c{char(n >> 24), char(n >> 16), char(n >> 8), char(n)};
+    return c + type + data + std::string(4, '\0');  // the CRC is not looked at before the check
+  };
+  const std::string ihdr{0, 0, 0, 1, 0, 0, 0, 1, 8, 0, 0, 0, 0};
+  test::writeBytes(dir + "/bomb.png", std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) +
+                                          chunk("iCCP", std::string("icc\0\0", 5) + z) + chunk("IEND", ""));
+  test::writeText(dir + "/b.json", R"({"meshes": [{"shape": "quad"}], "lights": [{"type": "environment", "file": "bomb.png"}]})");
+  const auto b = runIsotrace("info " + dir + "/b.json");
+  EXPECT_EQ(b.status, 2);
+  EXPECT_NE(b.err.find("bomb.png: byte 33: PNG chunk 'iCCP' inflates to more than 16 MiB"), std::string::npos) << b.err;
 }
 
 // SIGTERM stops a render like SIGINT: the image of the samples so far is written whole, the

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -237,6 +238,14 @@ TEST(Gltf, BadFilesAreRefusedWithOneLine) {
   expectRefused(dir, "cut.glb", "truncated");
   test::writeBytes(dir + "/head.glb", box.str().substr(0, 10));
   expectRefused(dir, "head.glb", "not a binary glTF");
+  // A BIN chunk longer than the file (tinygltf called it "not aligned to a 4-byte boundary").
+  std::string longBin = box.str();
+  uint32_t jsonLength;
+  std::memcpy(&jsonLength, &longBin[12], 4);
+  const uint32_t huge = 0x7ffffff0;
+  std::memcpy(&longBin[20 + jsonLength], &huge, 4);
+  test::writeBytes(dir + "/longbin.glb", longBin);
+  expectRefused(dir, "longbin.glb", "the BIN chunk of 2147483632 bytes runs past the end of the file");
 
   test::writeBytes(dir + "/tri.bin", TriangleFile::binary());
   test::writeText(dir + "/missing.gltf", TriangleFile::json("", R"([{"mesh": 0}])", "nothere.bin"));

@@ -239,6 +239,9 @@ TEST_F(SyntheticFiles, HostileHeadersAreNamedNotFollowed) {
   expectInputError(nrrd("b.nhdr", "encoding: raw\ndata file: s%d.raw a b c\n"), "line 7: 'a' is not a whole number");
   expectInputError(nrrd("c.nhdr", "encoding: raw\ndata file: s%d.raw 1 1000 1\n"), "line 7: 1000 data files for 2 slices");
   expectInputError(nrrd("d.nhdr", "encoding: raw\ndata file: s%0100000000d.raw 1 2 1\n"), "a field width above 32");
+  // Found by the fuzzer: a range whose ends are in the wrong order for its step, but within one
+  // step (5 3 5: (3 - 5) / 5 truncates to 0), gave no files and a division by zero.
+  expectInputError(nrrd("d2.nhdr", "encoding: raw\ndata file: s%d.raw 5 3 5\n"), "empty or endless file range");
   // Skips: a line skip past the data ends (it used to loop 1e12 times), a byte skip of 1e300.
   expectInputError(nrrd("e.nrrd", "encoding: raw\nline skip: 1000000000000\n", le), "line skip runs past the end of the data");
   expectInputError(nrrd("f.nrrd", "encoding: raw\nline skip: 1e20\n", le), "line 7: line skip must be a whole number from 0 to 1e15");

@@ -479,7 +479,8 @@ Grid loadNrrd(const std::string& path) {
                                         "' is not a whole number from -1e9 to 1e9 (data file: PATTERN MIN MAX STEP)");
       }
       const long long first = range[0], last = range[1], step = range[2];
-      if (step == 0 || (last - first) / step < 0) throw InputError(path, w, "empty or endless file range");
+      // (last - first) / step truncates towards 0: a range like 5 3 5 must be caught by its ends.
+      if (step == 0 || (step > 0 ? last < first : last > first)) throw InputError(path, w, "empty or endless file range");
       const long long n = (last - first) / step + 1;
       if (n > dims.z) throw InputError(path, w, std::to_string(n) + " data files for " + std::to_string(dims.z) + " slices");
       for (long long i = first; step > 0 ? i <= last : i >= last; i += step)
