@@ -92,11 +92,13 @@ Vec4f Texture::lookup(float u, float v) const {
 
 namespace {
 
-// PNG chunks are checked before OpenImageIO sees them: every chunk lies inside the data, and
-// the zlib-compressed ancillary chunks (an ICC profile, compressed text), which libpng
-// inflates whole while reading the header, inflate to at most 16 MiB (the fuzzer found a
-// 1.6 KB PNG whose profile took 2.3 GB).
-void checkPngChunks(const std::vector<unsigned char>& png, const std::string& name) {
+// PNG chunks are checked before OpenImageIO sees them, and a copy without ICC profile goes on:
+// every chunk lies inside the data; the compressed text chunks, which libpng inflates whole
+// while reading the header, inflate to at most 16 MiB (the fuzzer found a 1.6 KB PNG that took
+// 2.3 GB); the iCCP chunk is dropped (colour is sRGB or linear by glTF's rules anyway, and
+// OpenImageIO 2.4's ICC parser reads past the end of a malformed profile: the fuzzer's crash).
+std::vector<unsigned char> checkedPng(const std::vector<unsigned char>& png, const std::string& name) {
+  std::vector<unsigned char> out(png.begin(), png.begin() + long(std::min<size_t>(8, png.size())));
   constexpr size_t kMaxInflated = size_t(16) << 20;
   size_t at = 8;
   while (at + 8 <= png.size()) {
@@ -104,7 +106,11 @@ void checkPngChunks(const std::vector<unsigned char>& png, const std::string& na
     const std::string type(png.begin() + long(at + 4), png.begin() + long(at + 8));
     if (length > png.size() - at - 8)
       throw InputError(name, "byte " + std::to_string(at), "PNG chunk '" + type + "' runs past the end of the image");
-    if (type == "iCCP" || type == "zTXt" || type == "iTXt") {
+    if (type == "iCCP") {
+      at += 12 + length;
+      continue;
+    }
+    if (type == "zTXt" || type == "iTXt") {
       // Keyword, NUL, [iTXt: compression flag], compression method, then the zlib stream.
       const unsigned char* data = png.data() + at + 8;
       const unsigned char* nul = static_cast<const unsigned char*>(std::memchr(data, 0, length));
@@ -139,8 +145,12 @@ void checkPngChunks(const std::vector<unsigned char>& png, const std::string& na
           throw InputError(name, "byte " + std::to_string(at), "PNG chunk '" + type + "' inflates to more than 16 MiB");
       }
     }
-    at += 12 + length;  // length, type, data, CRC
+    const size_t end = std::min(png.size(), at + 12 + length);  // length, type, data, CRC
+    out.insert(out.end(), png.begin() + long(at), png.begin() + long(end));
+    at = end;
   }
+  out.insert(out.end(), png.begin() + long(std::min(at, png.size())), png.end());
+  return out;
 }
 
 }  // namespace
@@ -152,8 +162,8 @@ Texture Texture::decode(const std::vector<unsigned char>& encoded, const std::st
   if (encoded.size() >= 3 && encoded[0] == 0xFF && encoded[1] == 0xD8) ext = ".jpg";
   else if (!(encoded.size() >= 8 && encoded[0] == 0x89 && encoded[1] == 'P'))
     throw InputError(name, "", "image is neither PNG nor JPEG");
-  if (ext == ".png") checkPngChunks(encoded, name);
-  OIIO::Filesystem::IOMemReader reader(encoded.data(), encoded.size());
+  const std::vector<unsigned char> bytes = ext == ".png" ? checkedPng(encoded, name) : encoded;
+  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
   auto in = OIIO::ImageInput::open("texture" + ext, nullptr, &reader);
   if (!in) throw InputError(name, "", "cannot decode image: " + OIIO::geterror());
   Texture t;
@@ -174,17 +184,18 @@ Texture Texture::fromTexels(int width, int height, std::vector<Vec4f> texels) {
 }
 
 Texture Texture::loadFile(const std::string& path) {
+  // A PNG is read from memory after the checks textures get (the magic decides, not the name).
+  std::vector<unsigned char> png;
   {
-    // A PNG's chunks are checked as for textures (the magic decides, not the name).
     std::ifstream file(path, std::ios::binary);
     char magic[8] = {0};
     if (file.read(magic, 8) && std::memcmp(magic, "\x89PNG\r\n\x1a\n", 8) == 0) {
       file.seekg(0);
-      const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
-      checkPngChunks(bytes, path);
+      png = checkedPng(std::vector<unsigned char>((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>()), path);
     }
   }
-  auto in = OIIO::ImageInput::open(path);
+  OIIO::Filesystem::IOMemReader reader(png.data(), png.size());
+  auto in = png.empty() ? OIIO::ImageInput::open(path) : OIIO::ImageInput::open("environment.png", nullptr, &reader);
   if (!in) throw InputError(path, "", "cannot read image: " + OIIO::geterror());
   Texture t;
   readImage(*in, path, true, t.m_texels, t.m_width, t.m_height);
