@@ -571,9 +571,21 @@ GltfModel loadGltf(const std::string& path) {
       const Json& item = root[list][i];
       if (!item.contains("uri")) continue;
       const std::string uri = item["uri"].get<std::string>();
-      if (uri.rfind("data:", 0) == 0 || uri.find('%') != std::string::npos) continue;  // inline, or encoded
-      const fs::path file = fs::path(path).parent_path() / uri;
       const std::string at = "/" + std::string(list) + "/" + std::to_string(i) + "/uri";
+      if (uri.rfind("data:", 0) == 0) {
+        // tinygltf calls a data URI it cannot decode "File not found": say what is wrong.
+        const size_t comma = uri.find(',');
+        if (comma == std::string::npos || uri.rfind(";base64", comma) == std::string::npos)
+          throw InputError(path, at, "a data URI must be base64 (data:...;base64,...)");
+        const std::string payload = uri.substr(comma + 1);
+        const bool base64 = payload.size() % 4 == 0 && std::all_of(payload.begin(), payload.end(), [](char c) {
+          return std::isalnum(static_cast<unsigned char>(c)) || c == '+' || c == '/' || c == '=';
+        });
+        if (!base64) throw InputError(path, at, "the data URI's payload is not valid base64");
+        continue;
+      }
+      if (uri.find('%') != std::string::npos) continue;  // percent-encoded: tinygltf decodes it
+      const fs::path file = fs::path(path).parent_path() / uri;
       std::error_code ec;
       if (fs::is_directory(file, ec)) throw InputError(path, at, "'" + uri + "' is a directory");
       if (!fs::exists(file, ec)) throw InputError(path, at, "'" + uri + "': file not found");

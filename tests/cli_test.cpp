@@ -603,6 +603,46 @@ TEST(Cli, HostilePngChunksAreRefused) {
   EXPECT_LE(std::count(c.err.begin(), c.err.end(), '\n'), 1) << c.err;
 }
 
+// Two renders writing the same --stats file at once both succeed (the temporary names are
+// unique per process; a fixed ".partial" name raced in 4 of 100 pairs).
+TEST(Cli, ConcurrentStatsWritesDoNotRace) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", scene(R"({"procedural": {"field": "sphere", "resolution": [8,8,8]}, "isosurfaces": [{"value": 0.5}]})"));
+  const std::string one = std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json --spp 1 --quiet --stats " + dir + "/st.json -o " + dir;
+  for (int pair = 0; pair < 6; ++pair) {
+    const std::string cmd = "(" + one + "/a.png >/dev/null 2>&1; echo $? > " + dir + "/ra) & (" + one + "/b.png >/dev/null 2>&1; echo $? > " +
+                            dir + "/rb) & wait";
+    ASSERT_EQ(std::system(cmd.c_str()), 0);
+    for (const char* r : {"/ra", "/rb"}) {
+      std::ifstream in(dir + r);
+      int status = -1;
+      in >> status;
+      EXPECT_EQ(status, 0) << "pair " << pair;
+    }
+  }
+  std::ifstream in(dir + "/st.json");
+  EXPECT_NO_THROW(nlohmann::json::parse(in));
+}
+
+// A stop signal while the scene loads writes nothing and says so (it used to kill silently).
+TEST(Cli, InterruptWhileLoadingWritesNothing) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"volumes": [{"procedural": {"field": "gyroid", "resolution": [400, 400, 400]},
+    "isosurfaces": [{"value": 0}]}]})");
+  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json --quiet -o " + dir + "/t.png >/dev/null 2>" +
+                          dir + "/err.txt & pid=$!; sleep 0.8; kill -INT $pid; wait $pid; echo $?";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_TRUE(p);
+  char buf[64] = {0};
+  ASSERT_TRUE(std::fgets(buf, sizeof buf, p));
+  pclose(p);
+  std::ifstream in(dir + "/err.txt");
+  const std::string err((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(std::atoi(buf), 130) << err;
+  EXPECT_NE(err.find("interrupted while loading: no image written"), std::string::npos) << err;
+  EXPECT_FALSE(fs::exists(dir + "/t.png"));
+}
+
 // SIGTERM stops a render like SIGINT: the image of the samples so far is written whole, the
 // exit status is 130, no temporary file is left.
 TEST(Cli, SigtermWritesTheFinishedSamples) {

@@ -279,6 +279,8 @@ TEST(Gltf, BadFilesAreRefusedWithOneLine) {
   fs::create_directories(dir + "/adir");
   test::writeText(dir + "/dir.gltf", TriangleFile::json("", R"([{"mesh": 0}])", "adir"));
   expectRefused(dir, "dir.gltf", "/buffers/0/uri: 'adir' is a directory");
+  test::writeText(dir + "/datauri.gltf", TriangleFile::json("", R"([{"mesh": 0}])", "data:application/octet-stream;base64,@@@@"));
+  expectRefused(dir, "datauri.gltf", "/buffers/0/uri: the data URI's payload is not valid base64");
 }
 
 // One ray known to reach the mesh first and one known to reach the iso-surface first.
