@@ -68,6 +68,10 @@ constexpr double kMaxCoordinate = 1e15;
 void checkCamera(const CameraDesc& c, const SceneDesc& scene) {
   const std::string where = scene.camera.gltfCamera.empty() ? "/camera" : "/camera/gltf_camera";
   const Vec3d forward = c.lookAt - c.position;
+  for (const Vec3d& p : {c.position, c.lookAt, c.up})
+    for (int a = 0; a < 3; ++a)
+      if (!std::isfinite(p[a]))
+        throw InputError(scene.path, where, "the camera has no view direction (its placement is not finite: a node scaled to 0?)");
   for (const Vec3d& p : {c.position, c.lookAt})
     for (int a = 0; a < 3; ++a)
       if (!(std::fabs(p[a]) <= kMaxCoordinate))

@@ -130,6 +130,22 @@ struct TriangleFile {
   }
 };
 
+// A glTF camera node with scale 0 has no view direction: bad input naming the camera, not an
+// Embree assertion on NaN rays (issue 14).
+TEST(Gltf, DegenerateCameraNodeIsBadInput) {
+  const std::string dir = test::scratchDir();
+  test::writeBytes(dir + "/tri.bin", TriangleFile::binary());
+  test::writeText(dir + "/cam.gltf", TriangleFile::json(R"(, "cameras": [{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1}}])",
+                                                        R"([{"mesh": 0, "children": [1]}, {"camera": 0, "scale": [0, 0, 0]}])"));
+  const SceneDesc s = parseSceneText(R"({"meshes": [{"file": "cam.gltf"}], "camera": {"gltf_camera": "#0"}})", dir + "/s.json");
+  try {
+    World world(s, IntersectorSpec{});
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("/camera/gltf_camera: the camera has no view direction"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Gltf, PunctualLightsAndEmissiveStrength) {
   const std::string dir = test::scratchDir();
   test::writeBytes(dir + "/tri.bin", TriangleFile::binary());
