@@ -557,9 +557,7 @@ GltfModel loadGltf(const std::string& path) {
   } catch (const Json::parse_error& e) {
     throw InputError(path, "byte " + std::to_string(e.byte), "JSON syntax error");
   } catch (const Json::exception& e) {
-    std::string what = e.what();
-    const auto bracket = what.find("] ");
-    throw InputError(path, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
+    throwJsonError(path, e.what());
   }
   if (!root.is_object()) throw InputError(path, "/", "expected a JSON object");
   for (const Rule& rule : kRules) checkRule(root, rule.path, 0, "", rule.kind, path);

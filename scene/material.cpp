@@ -243,25 +243,10 @@ float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
 
 bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSample& out) const {
   if (m_type == MaterialType::Emissive || woIn.z == 0) return false;
-  if (m_type == MaterialType::Dielectric && m_thin) {
-    const float R = thinDielectricReflectance(woIn.z, m_eta), cosO = std::fabs(woIn.z);
-    out.delta = true;
-    if (u0 < R) {
-      out.wi = {-woIn.x, -woIn.y, woIn.z};
-      out.f = Vec3f{R, R, R} / cosO;
-      out.pdf = R;
-      out.transmission = false;
-      return true;
-    }
-    out.wi = -woIn;
-    out.f = m_color * ((1 - R) / cosO);
-    out.pdf = 1 - R;
-    out.transmission = out.straight = true;
-    return out.pdf > 0;
-  }
   if (m_type == MaterialType::Dielectric) {
-    // Smooth glass: the side of wo says whether the ray enters (wo.z > 0) or leaves.
-    const float F = fresnelDielectric(woIn.z, m_eta);
+    // Smooth glass: the side of wo says whether the ray enters (wo.z > 0) or leaves. A thin
+    // sheet reflects its inner reflections too and transmits straight through.
+    const float F = m_thin ? thinDielectricReflectance(woIn.z, m_eta) : fresnelDielectric(woIn.z, m_eta);
     const float cosO = std::fabs(woIn.z);
     out.delta = true;
     if (u0 < F) {
@@ -270,6 +255,13 @@ bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSamp
       out.pdf = F;
       out.transmission = false;
       return true;
+    }
+    if (m_thin) {
+      out.wi = -woIn;
+      out.f = m_color * ((1 - F) / cosO);
+      out.pdf = 1 - F;
+      out.transmission = out.straight = true;
+      return out.pdf > 0;
     }
     const bool entering = woIn.z > 0;
     const float eta = entering ? m_eta : 1 / m_eta;  // eta_t / eta_i

@@ -118,6 +118,9 @@ struct SceneDesc {
 // JSON text nested deeper than `limit` arrays and objects is refused (an InputError naming the
 // byte) before any parser sees it: parsers and the code walking their trees recurse.
 void checkJsonNesting(const std::string& text, const std::string& file, int limit = 128);
+// A JSON library exception (not a syntax error) as one InputError: "FILE: JSON: what", without
+// nlohmann's "[json.exception...]" prefix (e.g. a number beyond double: 1e400).
+[[noreturn]] void throwJsonError(const std::string& file, const std::string& what);
 
 // Reads and validates a scene file. Any problem is an InputError naming the JSON path.
 SceneDesc parseSceneFile(const std::string& path);

@@ -339,16 +339,18 @@ void checkJsonNesting(const std::string& text, const std::string& file, int limi
   }
 }
 
+void throwJsonError(const std::string& file, const std::string& what) {
+  const auto bracket = what.find("] ");
+  throw InputError(file, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
+}
+
 SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   checkJsonNesting(text, path);
   Json root;
   try {
     root = Json::parse(text);
   } catch (const Json::out_of_range& e) {
-    // A number beyond double (1e400): nlohmann says which, but not where.
-    std::string what = e.what();
-    const auto bracket = what.find("] ");
-    throw InputError(path, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
+    throwJsonError(path, e.what());  // a number beyond double (1e400): nlohmann says which, not where
   } catch (const Json::parse_error& e) {
     // e.byte is the 1-based offset of the error; report it as line and column.
     size_t line = 1, col = 1;

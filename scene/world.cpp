@@ -592,7 +592,8 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   // found anyway; the offset only has to clear the rounding of the float traversal's grid
   // coordinates, or the hit is found again at t = 0 by its own ray, over and over.
   const Grid& grid = *m_volumes[info.volume].grid;
-  const Vec3d g = absv((info.surface->objectOrigin(hit.position64) - grid.origin()) / grid.spacing());
+  const Vec3d gridCoord = (info.surface->objectOrigin(hit.position64) - grid.origin()) / grid.spacing();
+  const Vec3d g = absv(gridCoord);
   const Vec3d s = grid.spacing();
   double scale = std::max({s.x, s.y, s.z});
   if (toWorld) {
@@ -607,7 +608,6 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   // stay with the exact surface's geometric normal, which it may not contradict.
   hit.shading = hit.normal;
   if (info.smoothNormals) {
-    const Vec3d gridCoord = (info.surface->objectOrigin(hit.position64) - grid.origin()) / grid.spacing();
     Vec3d n = -grid.smoothGradient(gridCoord) / grid.spacing();
     if (toWorld) n = toWorld->normal(n);
     if (!info.solidAbove) n = -n;
