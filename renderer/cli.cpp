@@ -385,12 +385,13 @@ int info(const std::string& path) {
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
-    std::printf("  volume %zu: %s\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
+    std::printf("  volume %zu: %s (%s)\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
                 "origin (%g, %g, %g), spacing (%g, %g, %g)%s\n",
-                v, vi.name.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
+                v, vi.name.c_str(), vi.format.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
                 g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
                 g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
                 vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
+    for (const std::string& note : vi.notes) std::printf("    %s\n", note.c_str());
     // Where the values lie, to choose iso values by: the range and a few quantiles.
     const std::vector<double> shares{0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99};
     const std::vector<double> q = g.quantiles(shares);
@@ -549,7 +550,7 @@ int bench(const CheckFlags& flags) {
               "refHits", "misses", "false", "median|dt|", "p99|dt|", "max|dt|", "ns/ray");
   std::string rows;
   for (size_t v = 0; v < scene.volumes.size(); ++v) {
-    const Grid grid = loadVolume(scene.volumes[v]);
+    const Grid grid = loadVolume(scene.volumes[v]).grid;
     for (const IsoSurfaceDesc& iso : scene.volumes[v].isosurfaces)
       for (RayKind kind : {RayKind::Camera, RayKind::Secondary})
         for (const IntersectorSpec& spec : specs) {
@@ -598,7 +599,9 @@ int exportMesh(const MeshFlags& flags) {
     throw InputError("--surface", "", "no iso-surface " + std::to_string(flags.surface) + " in " + desc.where +
                                           " (it has " + std::to_string(desc.isosurfaces.size()) + ", counted from 0)");
   const IsoSurfaceDesc& surface = desc.isosurfaces[flags.surface];
-  const Grid grid = loadVolume(desc);
+  const VolumeFile volume = loadVolume(desc);
+  const Grid& grid = volume.grid;
+  const Transform& toWorld = volume.toWorld;
   const IsoMesh mesh = extractIsoMesh(grid, surface.value);
   const std::string where = desc.where + "/isosurfaces/" + std::to_string(flags.surface);
   if (mesh.indices.empty()) {
@@ -616,8 +619,8 @@ int exportMesh(const MeshFlags& flags) {
   out.positions.reserve(mesh.positions.size());
   out.normals.reserve(mesh.positions.size());
   for (size_t i = 0; i < mesh.positions.size(); ++i) {
-    out.positions.push_back(Vec3f(desc.transform.point(origin + mesh.positions[i] * spacing)));
-    const Vec3d n = desc.transform.normal(mesh.gradients[i] / spacing) * side;
+    out.positions.push_back(Vec3f(toWorld.point(origin + mesh.positions[i] * spacing)));
+    const Vec3d n = toWorld.normal(mesh.gradients[i] / spacing) * side;
     const double len = length(n);
     out.normals.push_back(len > 0 && std::isfinite(len) ? Vec3f(n / len) : Vec3f{0, 0, 1});
   }
@@ -625,7 +628,7 @@ int exportMesh(const MeshFlags& flags) {
   // The mesh is wound counter-clockwise seen from lower values; glTF's front is the solid's
   // outside, which is the higher side for a solid below the iso value; a mirroring transform
   // flips the winding once more.
-  if (!surface.solidAbove != (desc.transform.determinant() < 0))
+  if (!surface.solidAbove != (toWorld.determinant() < 0))
     for (size_t t = 0; t < out.indices.size(); t += 3) std::swap(out.indices[t + 1], out.indices[t + 2]);
   if (!surface.material.empty()) {
     const MaterialDesc& m = scene.materials.at(surface.material);

@@ -52,12 +52,18 @@ void worldTriangles(const TriangleMesh& m, const Transform& t, bool identity, st
 
 }  // namespace
 
-Grid loadVolume(const VolumeDesc& desc) {
-  Grid grid = desc.field ? makeProceduralGrid(*desc.field, desc.resolution)
-                         : loadVolumeFile(desc.file, desc.layout);
-  if (desc.origin) grid.setOrigin(*desc.origin);
-  if (desc.spacing) grid.setSpacing(*desc.spacing);
-  return grid;
+VolumeFile loadVolume(const VolumeDesc& desc) {
+  VolumeFile v;
+  if (desc.field) {
+    v.grid = makeProceduralGrid(*desc.field, desc.resolution);
+    v.format = "procedural";
+  } else {
+    v = readVolumeFile(desc.file, desc.layout);
+  }
+  if (desc.origin) v.grid.setOrigin(*desc.origin);
+  if (desc.spacing) v.grid.setSpacing(*desc.spacing);
+  v.toWorld = desc.transform * v.toWorld;
+  return v;
 }
 
 namespace {
@@ -364,15 +370,18 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     const auto loadStart = std::chrono::steady_clock::now();
     VolumeInfo info;
     info.name = desc.field ? "procedural" : desc.file;
-    info.grid = std::make_unique<Grid>(loadVolume(desc));
-    info.transform = desc.transform;
+    VolumeFile file = loadVolume(desc);
+    info.grid = std::make_unique<Grid>(std::move(file.grid));
+    info.transform = file.toWorld;
+    info.format = file.format;
+    info.notes = std::move(file.notes);
     m_loadSeconds += secondsSince(loadStart);
 
     const auto buildStart = std::chrono::steady_clock::now();
     info.bricks = std::make_unique<BrickGrid>(*info.grid);
     m_volumes.push_back(std::move(info));
     const VolumeInfo& vol = m_volumes.back();
-    const bool instanced = !desc.transform.isIdentity();
+    const bool instanced = !vol.transform.isIdentity();
     RTCScene target = m_scene;
     std::vector<GeometryRecord> records;
     if (instanced) {
@@ -406,13 +415,13 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
                       lo, hi);
         m_warnings.push_back(scene.path + ": " + desc.where + "/isosurfaces/" + std::to_string(k) + ": " + line);
       }
-      if (instanced) s.surface->setWorldToObject(desc.transform.inverse());
+      if (instanced) s.surface->setWorldToObject(vol.transform.inverse());
       // A surface with no active brick holds no primitive: nothing for Embree to build.
       if (!s.surface->activeBricks().empty()) {
         GeometryRecord rec;
         rec.surface = int(m_surfaces.size());
         rec.material = s.material;
-        rec.toWorld = desc.transform;
+        rec.toWorld = vol.transform;
         rec.identity = !instanced;
         attach(target, s.surface->createGeometry(m_device), instanced ? records : m_top, rec);
       }
@@ -422,7 +431,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       RTCGeometry instance = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
       rtcSetGeometryInstancedScene(instance, target);
       float xfm[12];
-      desc.transform.toColumnMajor(xfm);
+      vol.transform.toColumnMajor(xfm);
       rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, xfm);
       GeometryRecord top;
       top.instance = int(m_instanceRecords.size());

@@ -54,7 +54,9 @@ struct VolumeInfo {
   std::string name;  // file or procedural field
   std::unique_ptr<Grid> grid;
   std::unique_ptr<BrickGrid> bricks;
-  Transform transform;
+  Transform transform;             // grid space -> world: the file's affine, then the scene's
+  std::string format;              // the file's format ("procedural" for a built-in field)
+  std::vector<std::string> notes;  // what the file said about itself (VolumeFile::notes)
 };
 
 struct MeshInfo {
@@ -191,7 +193,9 @@ Ray spawnRayTo(const Hit& hit, const Vec3f& target);
 // A camera that sees the whole box [lower, upper] (a scene file without a camera).
 CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov = 40);
 
-// Loads one volume of a scene with its placement applied (file header, then scene keys).
-Grid loadVolume(const VolumeDesc& desc);
+// Loads one volume of a scene with its placement applied: the file's origin, spacing and affine,
+// then the scene's keys ("origin" and "spacing" replace the file's; "transform" comes after its
+// affine). The result's toWorld is the whole grid-space-to-world placement.
+VolumeFile loadVolume(const VolumeDesc& desc);
 
 }  // namespace iso

@@ -44,6 +44,10 @@ seed volume 3 $data/volumes/ironProt.vtk
 seed volume 4 <(head -c 64 $data/volumes/bucky_32x32x32_uint8.raw)
 seed volume 5 <(head -c 256 $data/volumes/bucky_32x32x32_uint8.raw | gzip)
 seed volume 7 <(head -c 48 $data/volumes/neghip_64x64x64_uint8.raw)
+nibabel=/usr/lib/python3/dist-packages/nibabel/tests/data  # python3-nibabel's test files
+seed volume 8 <(gunzip -c $nibabel/standard.nii.gz)
+seed volume 8 $nibabel/reoriented_anat_moved.nii
+seed volume 9 $nibabel/example_nifti2.nii.gz
 seed gltf 0 $data/meshes/BoxTextured/BoxTextured.gltf
 seed gltf 1 $data/meshes/Box.glb
 seed image 0 $data/meshes/BoxTextured/CesiumLogoFlat.png

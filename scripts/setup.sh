@@ -3,7 +3,8 @@
 # and configures + builds a Release build in ./build. openimageio-tools is listed because
 # Debian 12's OpenImageIO CMake config refers to its binaries and fails without them;
 # libopenvdb-dev (with libboost-iostreams-dev, which its CMake module needs) builds
-# `isotrace mesh` (OpenVDB's volumeToMesh).
+# `isotrace mesh` (OpenVDB's volumeToMesh). libnifti2-dev reads NIfTI headers; python3-nibabel
+# is there for its test files (real NIfTI-1/2 volumes the tests read).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -11,7 +12,8 @@ packages=(build-essential cmake pkg-config
           libembree-dev libopenimageio-dev openimageio-tools libtbb-dev
           libtinygltf-dev nlohmann-json3-dev libstb-dev
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
-          libopenvdb-dev libboost-iostreams-dev)
+          libopenvdb-dev libboost-iostreams-dev
+          libnifti2-dev python3-nibabel)
 
 missing=()
 for p in "${packages[@]}"; do

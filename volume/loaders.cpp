@@ -15,6 +15,10 @@
 
 #include "volume/input_error.h"
 
+extern "C" {
+#include <nifti2_io.h>
+}
+
 namespace iso {
 namespace {
 
@@ -692,6 +696,208 @@ Grid loadVtk(const std::string& path) {
   return g;
 }
 
+// ---------------------------------------------------------------------------------------
+// NIfTI-1 and NIfTI-2 (https://nifti.nimh.nih.gov/nifti-1, nifti-2): the header through
+// libnifti2 (either version, either byte order, single .nii, .hdr/.img pairs, gzip, qform as
+// a quaternion), the samples read here like raw ones: straight into the grid for the types the
+// grid holds, through one float32 conversion for the others or where scl_slope scales them.
+
+std::string niftiTypeName(int datatype) { return nifti_datatype_string(datatype); }
+
+// The file's samples of one 3D frame, in the file's byte order: `count` bytes from `offset` of
+// the image file (inflated as it goes when gzip; the rest of a 4D stream is not inflated).
+void readNiftiBytes(const std::string& image, bool gzip, size_t offset, uint8_t* out, size_t count,
+                    const std::string& file) {
+  if (!gzip) {
+    size_t fileSize;
+    std::ifstream in = openFile(image, fileSize);  // its size was checked before allocating
+    in.seekg(std::streamoff(offset));
+    readExactly(in, out, count, image);
+    return;
+  }
+  struct Done {};
+  size_t seen = 0, produced = 0;
+  try {
+    inflateStream(readFile(image), image, [&](const uint8_t* p, size_t n) {
+      const size_t skip = seen < offset ? std::min(n, offset - seen) : 0;
+      seen += n;
+      const size_t take = std::min(n - skip, count - produced);
+      std::memcpy(out + produced, p + skip, take);
+      produced += take;
+      if (produced == count) throw Done{};
+    });
+  } catch (const Done&) {
+  }
+  if (produced != count)
+    throw InputError(image, "", "decompressed data holds " + std::to_string(produced) + " bytes of samples after byte " +
+                                    std::to_string(offset) + ", the header of " + file + " asks for " + std::to_string(count));
+}
+
+// Converts `n` samples of a NIfTI type (file order of bytes in `swap`) to float32, scaled.
+template <typename T>
+void toFloat(const uint8_t* in, float* out, size_t n, bool swap, double slope, double inter) {
+  for (size_t i = 0; i < n; ++i) {
+    uint8_t b[sizeof(T)];
+    std::memcpy(b, in + i * sizeof(T), sizeof(T));
+    if (swap) std::reverse(b, b + sizeof(T));
+    T v;
+    std::memcpy(&v, b, sizeof(T));
+    out[i] = float(double(v) * slope + inter);
+  }
+}
+
+// Splits an index-to-world affine (3x4) into the grid's spacing (its columns' lengths), origin
+// (when the axes are the world's) and what is left as a placement (rotation, mirroring, shear).
+void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
+                   const std::string& where) {
+  Vec3d spacing;
+  bool aligned = true;
+  for (int c = 0; c < 3; ++c) {
+    spacing[c] = std::sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
+    if (!(spacing[c] > 0) || !std::isfinite(spacing[c]))
+      throw InputError(file, where, "the affine's column " + std::to_string(c) + " is zero or not finite");
+  }
+  // Off-diagonal terms below 1e-9 of the voxel size are rounding (a quaternion of a rotation by
+  // 0 or 180 degrees gives 1e-17s): such an affine is aligned, and needs no Embree instance.
+  for (int c = 0; c < 3; ++c)
+    for (int r = 0; r < 3; ++r)
+      aligned = aligned && (r == c ? a[r][c] > 0 : std::fabs(a[r][c]) <= 1e-9 * spacing[c]);
+  for (int r = 0; r < 3; ++r)
+    if (!std::isfinite(a[r][3]) || std::fabs(a[r][3]) > 1e15)
+      throw InputError(file, where, "the affine's offset is not finite or beyond 1e15");
+  grid.setSpacing(spacing);
+  const Vec3d offset{a[0][3], a[1][3], a[2][3]};
+  if (aligned) {
+    grid.setOrigin(offset);
+    return;
+  }
+  double rows[12];
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) rows[r * 4 + c] = a[r][c] / spacing[c];
+    rows[r * 4 + 3] = a[r][3];
+  }
+  toWorld = Transform::fromRows(rows);
+  if (!(std::fabs(toWorld.determinant()) > 1e-9))
+    throw InputError(file, where, "the affine is singular (its axes are not independent)");
+}
+
+VolumeFile loadNifti(const std::string& path) {
+  size_t fileSize;
+  openFile(path, fileSize);  // missing file or a directory: the usual errors
+  nifti_set_debug_level(0);  // the library would print its own messages to stderr
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  if (!nim)
+    throw InputError(path, "header", "not a readable NIfTI-1 or NIfTI-2 header (or its image file is missing)");
+  VolumeFile out;
+  int version = 0;
+  std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the file layout, not the version
+  out.format = nim->nifti_type == NIFTI_FTYPE_ANALYZE ? "ANALYZE 7.5" : version == 2 ? "NIfTI-2" : "NIfTI-1";
+  int64_t frames = 1;
+  for (int d = 4; d <= 7 && d <= nim->dim[0]; ++d) {
+    if (nim->dim[d] < 1) throw InputError(path, "dim[" + std::to_string(d) + "]", "must be at least 1");
+    if (frames > (int64_t(1) << 40) / nim->dim[d]) throw InputError(path, "dim", "too many frames");
+    frames *= nim->dim[d];
+  }
+  for (int64_t n : {nim->nx, nim->ny, nim->nz})
+    if (n < 1 || n > (1 << 20)) throw InputError(path, "dim", "each of the first three sizes must be 1 to 2^20");
+  const Vec3i dims{int(nim->nx), int(nim->ny), int(nim->nz)};
+  checkDims(dims, path, "dim");
+  if (frames > 1) out.notes.push_back("frame 0 of " + std::to_string(frames) + " (a volume is one 3D frame)");
+
+  ScalarType native;
+  bool direct = true;
+  switch (nim->datatype) {
+    case DT_UINT8: native = ScalarType::UInt8; break;
+    case DT_INT16: native = ScalarType::Int16; break;
+    case DT_UINT16: native = ScalarType::UInt16; break;
+    case DT_FLOAT32: native = ScalarType::Float32; break;
+    case DT_INT8: case DT_INT32: case DT_UINT32: case DT_INT64: case DT_UINT64: case DT_FLOAT64:
+      native = ScalarType::Float32;
+      direct = false;
+      break;
+    default:
+      throw InputError(path, "datatype", "NIfTI type " + niftiTypeName(nim->datatype) +
+                                             " is not supported (one scalar per voxel: integers or floats)");
+  }
+  int nbyper = 0, swapsize = 0;
+  nifti_datatype_sizes(nim->datatype, &nbyper, &swapsize);
+  // scl_slope 0 means "not scaled" (the standard); otherwise every value is slope * v + inter.
+  const double slope = nim->scl_slope, inter = nim->scl_inter;
+  const bool scaled = slope != 0 && std::isfinite(slope) && !(slope == 1 && inter == 0);
+  if (slope != 0 && (!std::isfinite(slope) || !std::isfinite(inter)))
+    throw InputError(path, "scl_slope", "scaling is not finite");
+  if (scaled) {
+    direct = false;
+    native = ScalarType::Float32;
+    out.notes.push_back("values scaled by scl_slope " + std::to_string(slope) + ", scl_inter " + std::to_string(inter));
+  }
+  const size_t voxels = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  const size_t fileBytes = voxels * size_t(nbyper);
+  const size_t gridBytes = checkedBytes(dims, native, path);
+  if (nim->iname_offset < 0) throw InputError(path, "vox_offset", "is negative");
+  const std::string image = nim->iname ? nim->iname : path;
+  const bool gzip = nifti_is_gzfile(image.c_str());
+  const bool swap = nim->byteorder != nifti_short_order();
+
+  if (!gzip) {  // the size is known before anything is allocated
+    size_t imageSize;
+    openFile(image, imageSize);
+    const size_t offset = size_t(nim->iname_offset);
+    if (imageSize < offset || imageSize - offset < fileBytes)
+      throw InputError(image, "", "holds " + std::to_string(imageSize > offset ? imageSize - offset : 0) +
+                                      " bytes of samples after byte " + std::to_string(offset) + ", the header of " +
+                                      path + " asks for " + std::to_string(fileBytes));
+  }
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(gridBytes);
+  if (direct) {
+    readNiftiBytes(image, gzip, size_t(nim->iname_offset), samples.get(), fileBytes, path);
+    finishSamples(samples.get(), native, dims, swap, path);
+  } else {
+    Bytes raw(fileBytes);
+    readNiftiBytes(image, gzip, size_t(nim->iname_offset), raw.data(), fileBytes, path);
+    float* f = reinterpret_cast<float*>(samples.get());
+    const double s = scaled ? slope : 1, c = scaled ? inter : 0;
+    switch (nim->datatype) {
+      case DT_UINT8: toFloat<uint8_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_INT8: toFloat<int8_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_INT16: toFloat<int16_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_UINT16: toFloat<uint16_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_INT32: toFloat<int32_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_UINT32: toFloat<uint32_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_INT64: toFloat<int64_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_UINT64: toFloat<uint64_t>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_FLOAT32: toFloat<float>(raw.data(), f, voxels, swap, s, c); break;
+      case DT_FLOAT64: toFloat<double>(raw.data(), f, voxels, swap, s, c); break;
+    }
+    if (!direct && !scaled) out.notes.push_back(niftiTypeName(nim->datatype) + " samples held as float32");
+    finishSamples(samples.get(), native, dims, false, path);  // NaN, Inf and float overflow are errors
+  }
+  out.grid = Grid(dims, native, std::shared_ptr<const void>(samples, samples.get()));
+
+  // Where the voxels are: the sform if it has a code, else the qform, else the voxel sizes
+  // alone (ANALYZE's convention, and NIfTI's "method 1").
+  const bool sform = nim->sform_code > 0, qform = !sform && nim->qform_code > 0;
+  double a[3][4] = {};
+  if (sform || qform) {
+    const nifti_dmat44& m = sform ? nim->sto_xyz : nim->qto_xyz;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) a[r][c] = m.m[r][c];
+  } else {
+    a[0][0] = nim->dx > 0 ? nim->dx : 1;
+    a[1][1] = nim->dy > 0 ? nim->dy : 1;
+    a[2][2] = nim->dz > 0 ? nim->dz : 1;
+  }
+  const std::string where = sform ? "srow_x/y/z" : qform ? "quatern_b/c/d, qoffset" : "pixdim";
+  placeByAffine(a, out.grid, out.toWorld, path, where);
+  char text[400];
+  std::snprintf(text, sizeof text, "%s (%s): voxel (i, j, k) at [%g %g %g %g; %g %g %g %g; %g %g %g %g] (i, j, k, 1)",
+                sform ? "sform" : qform ? "qform" : "no affine, pixdim only",
+                sform ? nifti_xform_string(nim->sform_code) : qform ? nifti_xform_string(nim->qform_code) : "voxel sizes",
+                a[0][0], a[0][1], a[0][2], a[0][3], a[1][0], a[1][1], a[1][2], a[1][3], a[2][0], a[2][1], a[2][2], a[2][3]);
+  out.notes.push_back(text);
+  return out;
+}
+
 // Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
 // memory is the grid itself); gzip-compressed ones are inflated straight into it.
 Grid loadRaw(const std::string& path, const RawLayout& layout) {
@@ -740,14 +946,29 @@ bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
   return true;
 }
 
-Grid loadVolumeFile(const std::string& path, const RawLayout& layout) {
+const char* volumeExtensions() {
+  return ".raw, .bin, .dat (each also .gz), .nrrd, .nhdr, .mhd, .mha, .vtk, .nii, .nii.gz, .hdr";
+}
+
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout) {
   const std::string name = lower(fs::path(path).filename().string());
-  if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return loadNrrd(path);
-  if (endsWith(name, ".mhd") || endsWith(name, ".mha")) return loadMetaImage(path);
-  if (endsWith(name, ".vtk")) return loadVtk(path);
-  if (endsWith(name, ".vdb"))
-    throw InputError(path, "", "OpenVDB volumes are not supported yet");
-  return loadRaw(path, layout);
+  auto wrap = [](Grid grid, const char* format) {
+    VolumeFile f;
+    f.grid = std::move(grid);
+    f.format = format;
+    return f;
+  };
+  if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return wrap(loadNrrd(path), "NRRD");
+  if (endsWith(name, ".mhd") || endsWith(name, ".mha")) return wrap(loadMetaImage(path), "MetaImage");
+  if (endsWith(name, ".vtk")) return wrap(loadVtk(path), "VTK");
+  if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz"))
+    return loadNifti(path);
+  for (const char* raw : {".raw", ".bin", ".dat"})
+    if (endsWith(name, raw) || endsWith(name, std::string(raw) + ".gz")) return wrap(loadRaw(path, layout), "raw");
+  if (endsWith(name, ".vdb")) throw InputError(path, "", "OpenVDB volumes are not supported yet");
+  const std::string ext = fs::path(name).extension().string();
+  throw InputError(path, "", (ext.empty() ? std::string("no file extension") : "unknown volume extension '" + ext + "'") +
+                                 " (supported: " + volumeExtensions() + ")");
 }
 
 }  // namespace iso

@@ -1,12 +1,14 @@
 #pragma once
 // Volume file loaders: raw (layout given, or read from an Open SciVis file name), gzip raw,
 // NRRD (attached/detached headers, raw/gzip/ascii encodings, multi-file `data file:`),
-// MetaImage (.mhd/.mha) and legacy VTK STRUCTURED_POINTS. Every failure is an InputError
-// naming the file and, where there is one, the header line.
+// MetaImage (.mhd/.mha), legacy VTK STRUCTURED_POINTS and NIfTI-1/2 (.nii, .nii.gz, .hdr/.img).
+// Every failure is an InputError naming the file and, where there is one, the header line.
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "volume/grid.h"
+#include "volume/transform.h"
 
 namespace iso {
 
@@ -17,7 +19,26 @@ struct RawLayout {
   bool bigEndian = false;
 };
 
-Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {});
+// A volume as its file holds it: the samples (with the file's origin and spacing, if it has
+// them), where the file puts them, and what `isotrace info` tells about it.
+struct VolumeFile {
+  Grid grid;
+  // Grid space (after the grid's origin and spacing) to the file's world, where the file's axes
+  // are rotated, mirrored or sheared against the world's (a NIfTI affine): identity otherwise.
+  Transform toWorld;
+  std::string format;               // "raw", "NRRD", "MetaImage", "VTK", "NIfTI-1", "NIfTI-2"
+  std::vector<std::string> notes;   // e.g. the affine and where it came from, frames skipped
+};
+
+// The format is chosen by the file name's extension; an unknown one is an error that lists the
+// supported ones (never a silent guess of raw).
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {});
+// The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
+inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
+  return readVolumeFile(path, layout).grid;
+}
+// The extensions readVolumeFile knows, for messages.
+const char* volumeExtensions();
 
 // Parses `name_256x256x128_uint8.raw[.gz]`; false if the name does not follow the convention.
 bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type);

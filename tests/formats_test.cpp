@@ -1,0 +1,163 @@
+// Volume and mesh formats people hold their data in: NIfTI (nibabel's test files, which
+// Debian's python3-nibabel ships), and malformed variants of them.
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "tests/test_util.h"
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+
+namespace iso {
+namespace {
+
+const std::string kNibabel = "/usr/lib/python3/dist-packages/nibabel/tests/data/";
+
+std::string readAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string gunzip(const std::string& data) {
+  z_stream zs{};
+  inflateInit2(&zs, 16 + MAX_WBITS);
+  std::string out;
+  char buf[1 << 16];
+  zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
+  zs.avail_in = uInt(data.size());
+  int rc;
+  do {
+    zs.next_out = reinterpret_cast<Bytef*>(buf);
+    zs.avail_out = sizeof buf;
+    rc = inflate(&zs, Z_NO_FLUSH);
+    out.append(buf, sizeof buf - zs.avail_out);
+  } while (rc == Z_OK);
+  inflateEnd(&zs);
+  return out;
+}
+
+// Expected values come from nibabel (an independent reader), for the first 3D frame:
+// nib.load(f); d = get_fdata()[..., 0]; d.sum(), d[1, 2, 1], and the affine.
+struct NiftiCase {
+  const char* file;
+  const char* format;
+  Vec3i dims;
+  double sum;
+  float voxel121;
+  double affine[3][4];
+  bool instanced;  // rotated, mirrored or sheared: placed by a transform, not origin/spacing
+};
+
+void PrintTo(const NiftiCase& c, std::ostream* os) { *os << c.file; }
+
+class NiftiFiles : public ::testing::TestWithParam<NiftiCase> {};
+
+TEST_P(NiftiFiles, ReadLikeNibabel) {
+  const NiftiCase& c = GetParam();
+  const VolumeFile v = readVolumeFile(kNibabel + c.file);
+  EXPECT_EQ(v.format, c.format);
+  ASSERT_EQ(v.grid.dims(), c.dims);
+  EXPECT_NEAR(v.grid.sum(), c.sum, 1e-6 * std::fabs(c.sum) + 1e-6);
+  EXPECT_NEAR(v.grid.value(1, 2, 1), c.voxel121, 1e-3);
+  EXPECT_EQ(!v.toWorld.isIdentity(), c.instanced);
+  // Voxel (i, j, k) lands where the affine puts it.
+  for (Vec3i ijk : {Vec3i{0, 0, 0}, Vec3i{1, 2, 1}, c.dims - Vec3i{1, 1, 1}}) {
+    const Vec3d p = v.toWorld.point(v.grid.origin() + Vec3d(ijk) * v.grid.spacing());
+    for (int r = 0; r < 3; ++r) {
+      const double want = c.affine[r][0] * ijk.x + c.affine[r][1] * ijk.y + c.affine[r][2] * ijk.z + c.affine[r][3];
+      EXPECT_NEAR(p[r], want, 1e-3) << "voxel " << ijk.x << " " << ijk.y << " " << ijk.z << " row " << r;
+    }
+  }
+}
+
+const double kOblique[3][4] = {{-2, 0, 0, 117.8551025390625},
+                               {0, 1.9737114906311035, -0.35552823543548584, -35.72294235229492},
+                               {0, 0.3232076168060303, 2.171081781387329, -7.248798370361328}};
+
+INSTANTIATE_TEST_SUITE_P(
+    Nibabel, NiftiFiles,
+    ::testing::Values(
+        // big-endian int16, x mirrored
+        NiftiCase{"anatomical.nii", "NIfTI-1", {33, 41, 25}, 284166082.0, 5215, {{-2, 0, 0, 32}, {0, 2, 0, -40}, {0, 0, 2, -16}}, true},
+        // 4D gzip, oblique sform: frame 0
+        NiftiCase{"example4d.nii.gz", "NIfTI-1", {128, 96, 24}, 50994397.0, 0,
+                  {{kOblique[0][0], kOblique[0][1], kOblique[0][2], kOblique[0][3]},
+                   {kOblique[1][0], kOblique[1][1], kOblique[1][2], kOblique[1][3]},
+                   {kOblique[2][0], kOblique[2][1], kOblique[2][2], kOblique[2][3]}}, true},
+        NiftiCase{"example_nifti2.nii.gz", "NIfTI-2", {32, 20, 12}, 3461748.0, 332,
+                  {{kOblique[0][0], kOblique[0][1], kOblique[0][2], kOblique[0][3]},
+                   {kOblique[1][0], kOblique[1][1], kOblique[1][2], kOblique[1][3]},
+                   {kOblique[2][0], kOblique[2][1], kOblique[2][2], kOblique[2][3]}}, true},
+        // int16 scaled by scl_slope/scl_inter into float32
+        NiftiCase{"functional.nii", "NIfTI-1", {17, 21, 3}, 3883746.552329719, 3524.096440434456f,
+                  {{-4, 0, 0, 32}, {0, 4, 0, -40}, {0, 0, 8, 0}}, true},
+        NiftiCase{"standard.nii.gz", "NIfTI-1", {4, 5, 7}, 7650.0, 255, {{1, 0, 0, 0}, {0, 3, 0, 0}, {0, 0, 2, 0}}, false},
+        // big-endian float32, axis-aligned: origin and spacing only
+        NiftiCase{"reoriented_anat_moved.nii", "NIfTI-1", {21, 26, 22}, 32739769.449157715, 0,
+                  {{4, 0, 0, -35.29789733886719}, {0, 4, 0, -47.97758483886719}, {0, 0, 4, -27.599409103393555}}, false}),
+    [](const auto& info) {
+      std::string n = info.param.file;
+      return n.substr(0, n.find('.'));
+    });
+
+void expectNiftiError(const std::string& file, const std::string& fragment) {
+  try {
+    readVolumeFile(file);
+    FAIL() << "no error for " << file;
+  } catch (const InputError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(file), std::string::npos) << msg;
+    EXPECT_NE(msg.find(fragment), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << "one line: " << msg;
+  }
+}
+
+// Malformed variants of a real file: each is refused with the place named, nothing crashes.
+TEST(NiftiFiles, MalformedVariantsAreNamed) {
+  const std::string dir = test::scratchDir();
+  const std::string good = gunzip(readAll(kNibabel + "standard.nii.gz"));  // 348-byte header, uint8 4x5x7
+  ASSERT_EQ(good.size(), 352u + 140u);
+  auto variant = [&](const std::string& name, size_t offset, const std::string& bytes, size_t cut = 0) {
+    std::string s = good;
+    s.replace(offset, bytes.size(), bytes);
+    if (cut) s.resize(cut);
+    test::writeBytes(dir + "/" + name, s);
+    return dir + "/" + name;
+  };
+  auto i16 = [](int v) { return std::string{char(v & 0xff), char((v >> 8) & 0xff)}; };
+  auto f32 = [](float v) { std::string s(4, '\0'); std::memcpy(s.data(), &v, 4); return s; };
+  expectNiftiError(variant("short.nii", 0, "", 400), "bytes of samples after byte 352");
+  expectNiftiError(variant("magic.nii", 0, std::string("\x01\x02\x03\x04", 4)), "not a readable NIfTI");
+  expectNiftiError(variant("complex.nii", 70, i16(32) + i16(64)), "is not supported");
+  expectNiftiError(variant("rgb.nii", 70, i16(128) + i16(24)), "is not supported");
+  expectNiftiError(variant("flat.nii", 40, i16(3) + i16(4) + i16(5) + i16(1)), "at least 2 samples");
+  expectNiftiError(variant("huge.nii", 40, i16(3) + i16(32767) + i16(32767) + i16(32767)), "bytes of samples");
+  // Scaled past float: the first overflowing voxel is named (slope 1e38 times a value of 255).
+  expectNiftiError(variant("slope.nii", 112, f32(1e38f)), "infinite value in the data");
+  // A float32 file with a NaN: the voxel is named.
+  std::string nan = good.substr(0, 352);
+  nan.replace(70, 4, i16(16) + i16(32));
+  for (int i = 0; i < 4 * 5 * 7; ++i) nan += f32(i == 5 ? std::nanf("") : float(i));
+  test::writeBytes(dir + "/nan.nii", nan);
+  expectNiftiError(dir + "/nan.nii", "voxel (1, 1, 0): NaN value");
+  // Truncated gzip.
+  const std::string gz = readAll(kNibabel + "example4d.nii.gz");
+  test::writeBytes(dir + "/cut.nii.gz", gz.substr(0, gz.size() / 3));
+  expectNiftiError(dir + "/cut.nii.gz", "compressed data");
+}
+
+TEST(VolumeFormats, UnknownExtensionsAreErrorsNotRaw) {
+  const std::string dir = test::scratchDir();
+  test::writeBytes(dir + "/scan.xyz", std::string(64, '\0'));
+  expectNiftiError(dir + "/scan.xyz", "unknown volume extension '.xyz' (supported: .raw");
+  test::writeBytes(dir + "/scan", std::string(64, '\0'));
+  expectNiftiError(dir + "/scan", "no file extension");
+}
+
+}  // namespace
+}  // namespace iso
