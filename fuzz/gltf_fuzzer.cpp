@@ -1,5 +1,5 @@
-// libFuzzer target: the glTF reader (tinygltf behind isotrace's own checks). The first byte
-// picks .gltf or .glb. Bad input must be an InputError.
+// libFuzzer target: the mesh readers (tinygltf and tinyobjloader behind isotrace's own
+// checks). The first byte picks .gltf, .glb or .obj. Bad input must be an InputError.
 #include <cstdint>
 #include <string>
 
@@ -9,9 +9,14 @@
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;
-  const std::string path = iso::fuzz::scratchFile(data[0] & 1 ? "m.glb" : "m.gltf", data + 1, size - 1);
+  static const char* names[] = {"m.gltf", "m.glb", "m.obj"};
+  const std::string name = names[data[0] % 3];
+  const std::string path = iso::fuzz::scratchFile(name, data + 1, size - 1);
   try {
-    iso::loadGltf(path);
+    if (name == "m.obj")
+      iso::loadObj(path);
+    else
+      iso::loadGltf(path);
   } catch (const iso::InputError&) {
   }
   return 0;

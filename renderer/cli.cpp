@@ -373,7 +373,7 @@ int info(const std::string& path) {
   for (size_t m = 0; m < world.meshes().size(); ++m) {
     const MeshInfo& mi = world.meshes()[m];
     images += mi.images;
-    std::printf("  mesh %zu: %s\n    %zu triangles in the world (%zu stored), %zu glTF meshes, %zu placements "
+    std::printf("  mesh %zu: %s\n    %zu triangles in the world (%zu stored), %zu meshes, %zu placements "
                 "(%zu as Embree instances); %zu materials, %zu textures, %zu cameras, %zu lights in the file\n",
                 m, mi.name.c_str(), mi.triangles, mi.uniqueTriangles, mi.meshes, mi.instances, mi.embreeInstances,
                 mi.materials, mi.textures, mi.cameras, mi.lights);

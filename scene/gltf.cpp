@@ -545,7 +545,7 @@ GltfModel loadGltf(const std::string& path) {
   if (!fs::exists(path, ec)) throw InputError(path, "", "glTF file not found");
   std::string ext = fs::path(path).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
-  if (ext != ".gltf" && ext != ".glb") throw InputError(path, "", "expected a .gltf or .glb file");
+  if (ext != ".gltf" && ext != ".glb") throw InputError(path, "", "unknown mesh extension (supported: .gltf, .glb, .obj)");
   const std::string bytes = readFile(path);
   const bool binary = ext == ".glb" || bytes.compare(0, 4, "glTF") == 0;
   const std::string jsonText = binary ? glbJson(bytes, path) : bytes;

@@ -13,9 +13,11 @@ struct GltfTextureRef {
   int texture = -1;  // index into GltfModel::textures; -1: none
 };
 
-// The glTF metallic-roughness material, factors and textures as in the file.
+// The glTF metallic-roughness material, factors and textures as in the file (an OBJ's MTL
+// material is a Diffuse one in the same struct).
 struct GltfMaterial {
   std::string name;
+  MaterialType type = MaterialType::MetallicRoughness;
   Vec3f baseColor{1, 1, 1};
   float metallic = 1, roughness = 1;
   Vec3f emissive{0, 0, 0};  // emissiveFactor times KHR_materials_emissive_strength
@@ -64,6 +66,9 @@ struct GltfModel {
 
 // Throws InputError naming the file and the JSON path of what is wrong.
 GltfModel loadGltf(const std::string& path);
+// Wavefront OBJ with its MTL materials (scene/obj.cpp): one mesh, a primitive per material,
+// Kd as a Lambertian colour, Ke as emission. Throws InputError naming the file and the face.
+GltfModel loadObj(const std::string& path);
 
 // One triangle mesh with one metallic-roughness material, in world space.
 struct GltfMeshOut {

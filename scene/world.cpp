@@ -1,5 +1,7 @@
 #include "scene/world.h"
 
+#include <algorithm>
+#include <filesystem>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -68,6 +70,12 @@ VolumeFile loadVolume(const VolumeDesc& desc) {
 
 namespace {
 constexpr double kMaxCoordinate = 1e15;
+
+bool isObjFile(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
+  return ext == ".obj";
+}
 
 // The camera, wherever it came from (scene file, glTF node, framing), must give finite rays
 // that Embree accepts.
@@ -214,7 +222,7 @@ int World::gltfMaterial(size_t model, int index) {
   const GltfMaterial& g = m_models[model].materials[index];
   Material m;
   m.name = g.name.empty() ? m_models[model].path + " material " + std::to_string(index) : g.name;
-  m.type = MaterialType::MetallicRoughness;
+  m.type = g.type;
   m.color = g.baseColor;
   m.metallic = g.metallic;
   m.roughness = g.roughness;
@@ -242,7 +250,7 @@ void World::loadMeshes(const SceneDesc& scene) {
       model.meshNames.push_back(model.path);
       model.instances.push_back({0, Transform(), "shape"});
     } else {
-      model = loadGltf(desc.file);
+      model = isObjFile(desc.file) ? loadObj(desc.file) : loadGltf(desc.file);
       for (const std::string& w : model.warnings) m_warnings.push_back(desc.file + ": " + w);
     }
     m_loadSeconds += secondsSince(loadStart);

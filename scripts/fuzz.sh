@@ -50,6 +50,7 @@ seed volume 8 $nibabel/reoriented_anat_moved.nii
 seed volume 9 $nibabel/example_nifti2.nii.gz
 seed gltf 0 $data/meshes/BoxTextured/BoxTextured.gltf
 seed gltf 1 $data/meshes/Box.glb
+seed gltf 2 $data/meshes/cornell/cornell_box.obj
 seed image 0 $data/meshes/BoxTextured/CesiumLogoFlat.png
 
 mkdir -p build-fuzz/crashes

@@ -13,7 +13,7 @@ packages=(build-essential cmake pkg-config
           libtinygltf-dev nlohmann-json3-dev libstb-dev
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev
-          libnifti2-dev python3-nibabel)
+          libnifti2-dev python3-nibabel libtinyobjloader-dev)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -7,6 +7,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "scene/gltf.h"
+#include "scene/world.h"
 #include "tests/test_util.h"
 #include "volume/input_error.h"
 #include "volume/loaders.h"
@@ -157,6 +159,74 @@ TEST(VolumeFormats, UnknownExtensionsAreErrorsNotRaw) {
   expectNiftiError(dir + "/scan.xyz", "unknown volume extension '.xyz' (supported: .raw");
   test::writeBytes(dir + "/scan", std::string(64, '\0'));
   expectNiftiError(dir + "/scan", "no file extension");
+}
+
+// The measured Cornell box as tinyobjloader ships it: 5 MTL materials, the lamp given as an
+// ambient colour of 20 (no Ke), the front wall's face commented out.
+TEST(ObjFiles, CornellBoxReadsWithItsMaterialsAndLamp) {
+  const std::string file = test::dataPath("meshes/cornell/cornell_box.obj");
+  const GltfModel m = loadObj(file);
+  ASSERT_EQ(m.meshes.size(), 1u);
+  size_t triangles = 0;
+  Vec3f lo{1e30f, 1e30f, 1e30f}, hi = -lo;
+  for (const TriangleMesh& prim : m.meshes[0]) {
+    triangles += prim.triangleCount();
+    for (const Vec3f& p : prim.positions) lo = min(lo, p), hi = max(hi, p);
+    for (uint32_t i : prim.indices) ASSERT_LT(i, prim.positions.size());
+  }
+  EXPECT_EQ(triangles, 36u);  // 17 quads and 2 triangles
+  EXPECT_EQ(lo, (Vec3f{0, 0, 0}));
+  EXPECT_EQ(hi, (Vec3f{556, 548.8f, 559.2f}));
+  ASSERT_EQ(m.materials.size(), 5u);
+  for (const GltfMaterial& g : m.materials) {
+    EXPECT_EQ(g.type, MaterialType::Diffuse);
+    if (g.name == "red") {
+      EXPECT_EQ(g.baseColor, (Vec3f{1, 0, 0}));
+    }
+    EXPECT_EQ(g.emissive, g.name == "light" ? (Vec3f{20, 20, 20}) : (Vec3f{0, 0, 0})) << g.name;
+  }
+  ASSERT_EQ(m.warnings.size(), 1u);
+  EXPECT_NE(m.warnings[0].find("'light': Ka above 1 without Ke, read as emission"), std::string::npos);
+  // In a scene the lamp's two triangles are an area light, the only light.
+  const SceneDesc scene = parseSceneText(R"({"meshes": [{"file": ")" + file + R"("}]})", "cornell.json");
+  const World world(scene, IntersectorSpec{});
+  ASSERT_EQ(world.lights().size(), 1u);
+  EXPECT_EQ(world.lights()[0].kind(), Light::Kind::Area);
+  EXPECT_EQ(world.lights()[0].triangleCount(), 2u);
+}
+
+TEST(ObjFiles, MalformedFilesAreNamed) {
+  const std::string dir = test::scratchDir();
+  auto expectRefused = [&](const std::string& name, const std::string& text, const std::string& fragment) {
+    test::writeText(dir + "/" + name, text);
+    try {
+      loadObj(dir + "/" + name);
+      FAIL() << "no error for " << name;
+    } catch (const InputError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(dir + "/" + name), std::string::npos) << msg;
+      EXPECT_NE(msg.find(fragment), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+  };
+  const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  expectRefused("index.obj", tri + "f 1 2 9\n", "face 1: vertex index out of range");
+  expectRefused("negative.obj", tri + "f 1 2 -7\n", "face 1: vertex index out of range");
+  expectRefused("normal.obj", tri + "vn 0 0 1\nf 1//1 2//1 3//5\n", "face 1: normal index out of range");
+  expectRefused("uv.obj", tri + "vt 0 0\no part\nf 1/1 2/1 3/4\n", "shape 'part' face 1: texture index out of range");
+  expectRefused("inf.obj", "v 0 0 0\nv 1 1e400 0\nv 0 1 0\nf 1 2 3\n", "vertex 2: coordinate is not finite");
+  expectRefused("far.obj", "v 0 0 0\nv 1 2e15 0\nv 0 1 0\nf 1 2 3\n", "vertex 2: coordinate is not finite or beyond 1e15");
+  expectRefused("empty.obj", tri, "no faces");
+  test::writeText(dir + "/t.mtl", "newmtl m\nKd 0.5 0.5 0.5\nmap_Kd nothere.png\n");
+  expectRefused("texture.obj", "mtllib t.mtl\n" + tri + "usemtl m\nf 1 2 3\n", "map_Kd 'nothere.png': file not found");
+  test::writeText(dir + "/neg.mtl", "newmtl m\nKd -1 0.5 0.5\n");
+  expectRefused("negcolour.obj", "mtllib neg.mtl\n" + tri + "usemtl m\nf 1 2 3\n", "colours must be finite and non-negative");
+  // Through the command line: exit status 2, one line, no image.
+  test::writeText(dir + "/scene.json", R"({"meshes": [{"file": "index.obj"}]})");
+  const test::CommandResult r = test::runIsotrace("render " + dir + "/scene.json -o " + dir + "/out.png");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("index.obj: face 1: vertex index out of range"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::ifstream(dir + "/out.png").good());
 }
 
 }  // namespace
