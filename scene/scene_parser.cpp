@@ -443,7 +443,8 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     for (size_t i = 0; i < j->size(); ++i) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
-                      {"file", "procedural", "dims", "type", "endian", "origin", "spacing", "transform", "isosurfaces"});
+                      {"file", "procedural", "dims", "type", "endian", "series", "origin", "spacing", "transform",
+                       "isosurfaces"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
@@ -469,6 +470,8 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
             vr.fail(vr.at("type"), "unknown type '" + name + "' (uint8, uint16, int16, float32)");
           v.layout.type = t;
         }
+        v.series = vr.string("series", "");
+        if (vr.has("series") && v.series.empty()) vr.fail(vr.at("series"), "empty series UID");
         const std::string endian = vr.string("endian", "little");
         if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
         v.layout.bigEndian = endian == "big";

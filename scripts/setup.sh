@@ -4,7 +4,8 @@
 # Debian 12's OpenImageIO CMake config refers to its binaries and fails without them;
 # libopenvdb-dev (with libboost-iostreams-dev, which its CMake module needs) builds
 # `isotrace mesh` (OpenVDB's volumeToMesh). libnifti2-dev reads NIfTI headers; python3-nibabel
-# is there for its test files (real NIfTI-1/2 volumes the tests read).
+# is there for its test files (real NIfTI-1/2 volumes the tests read), python3-pydicom for its
+# DICOM test files; libgdcm-dev reads DICOM, libtinyobjloader-dev OBJ meshes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -13,7 +14,7 @@ packages=(build-essential cmake pkg-config
           libtinygltf-dev nlohmann-json3-dev libstb-dev
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev
-          libnifti2-dev python3-nibabel libtinyobjloader-dev)
+          libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom)
 
 missing=()
 for p in "${packages[@]}"; do

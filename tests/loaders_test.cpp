@@ -242,6 +242,9 @@ TEST_F(SyntheticFiles, HostileHeadersAreNamedNotFollowed) {
   // Found by the fuzzer: a range whose ends are in the wrong order for its step, but within one
   // step (5 3 5: (3 - 5) / 5 truncates to 0), gave no files and a division by zero.
   expectInputError(nrrd("d2.nhdr", "encoding: raw\ndata file: s%d.raw 5 3 5\n"), "empty or endless file range");
+  // A 50 KB pattern (std::regex overflowed the stack on it: a fuzzer finding).
+  expectInputError(nrrd("d3.nhdr", "encoding: raw\ndata file: s" + std::string(50000, 'x') + "%0100d.raw 1 2 1\n"),
+                   "a field width above 32");
   // Skips: a line skip past the data ends (it used to loop 1e12 times), a byte skip of 1e300.
   expectInputError(nrrd("e.nrrd", "encoding: raw\nline skip: 1000000000000\n", le), "line skip runs past the end of the data");
   expectInputError(nrrd("f.nrrd", "encoding: raw\nline skip: 1e20\n", le), "line 7: line skip must be a whole number from 0 to 1e15");

@@ -11,6 +11,8 @@ class InputError : public std::runtime_error {
   // `where` names the place inside `file`: a JSON path, a header line, a byte offset.
   InputError(const std::string& file, const std::string& where, const std::string& what)
       : std::runtime_error(file + (where.empty() ? "" : ": " + where) + ": " + what) {}
+  // A message already in that form (passed on from a child process).
+  explicit InputError(const std::string& message) : std::runtime_error(message) {}
 };
 
 }  // namespace iso

@@ -1,6 +1,8 @@
 #include "volume/loaders.h"
 
+#include <fcntl.h>
 #include <sys/mman.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -310,15 +312,18 @@ bool nrrdType(const std::string& t, ScalarType& type) {
 }
 
 // Expands the `%d` form of `data file:` safely: exactly one integer conversion, no other '%'.
+// Scanned by hand: std::regex recurses per character and overflows the stack on a long line
+// (found by the fuzzer on a 47 KB pattern).
 std::string formatSliceName(const std::string& pattern, long index, const std::string& file,
                             const std::string& where) {
-  static const std::regex conv("%(0?[0-9]*)d");
-  std::smatch m;
-  if (!std::regex_search(pattern, m, conv) ||
+  const size_t percent = pattern.find('%');
+  size_t end = percent == std::string::npos ? percent : percent + 1;
+  while (end < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[end]))) ++end;
+  if (percent == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
       std::count(pattern.begin(), pattern.end(), '%') != 1)
-    throw InputError(file, where, "data file pattern '" + pattern + "' needs exactly one %d");
+    throw InputError(file, where, "data file pattern '" + pattern.substr(0, 64) + "' needs exactly one %d");
   std::string number = std::to_string(index);
-  const std::string width = m[1].str();
+  const std::string width = pattern.substr(percent + 1, end - percent - 1);
   if (!width.empty()) {
     if (width.size() > 2 || std::stoul(width) > 32)
       throw InputError(file, where, "data file pattern '" + pattern.substr(0, 64) + "': a field width above 32");
@@ -326,7 +331,7 @@ std::string formatSliceName(const std::string& pattern, long index, const std::s
     const char pad = width[0] == '0' ? '0' : ' ';
     if (number.size() < w) number = std::string(w - number.size(), pad) + number;
   }
-  return m.prefix().str() + number + m.suffix().str();
+  return pattern.substr(0, percent) + number + pattern.substr(end + 1);
 }
 
 Grid loadNrrd(const std::string& path) {
@@ -704,6 +709,31 @@ Grid loadVtk(const std::string& path) {
 
 std::string niftiTypeName(int datatype) { return nifti_datatype_string(datatype); }
 
+// libnifti prints some errors to stderr whatever its debug level ("** ERROR: ... bad
+// datatype"); isotrace says what is wrong itself, in one line, so stderr is muted meanwhile.
+class QuietStderr {
+ public:
+  QuietStderr() {
+    std::fflush(stderr);
+    m_saved = dup(2);
+    const int devNull = open("/dev/null", O_WRONLY | O_CLOEXEC);
+    if (devNull >= 0) {
+      dup2(devNull, 2);
+      close(devNull);
+    }
+  }
+  ~QuietStderr() {
+    std::fflush(stderr);
+    if (m_saved >= 0) {
+      dup2(m_saved, 2);
+      close(m_saved);
+    }
+  }
+
+ private:
+  int m_saved = -1;
+};
+
 // The file's samples of one 3D frame, in the file's byte order: `count` bytes from `offset` of
 // the image file (inflated as it goes when gzip; the rest of a 4D stream is not inflated).
 void readNiftiBytes(const std::string& image, bool gzip, size_t offset, uint8_t* out, size_t count,
@@ -746,51 +776,20 @@ void toFloat(const uint8_t* in, float* out, size_t n, bool swap, double slope, d
   }
 }
 
-// Splits an index-to-world affine (3x4) into the grid's spacing (its columns' lengths), origin
-// (when the axes are the world's) and what is left as a placement (rotation, mirroring, shear).
-void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
-                   const std::string& where) {
-  Vec3d spacing;
-  bool aligned = true;
-  for (int c = 0; c < 3; ++c) {
-    spacing[c] = std::sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
-    if (!(spacing[c] > 0) || !std::isfinite(spacing[c]))
-      throw InputError(file, where, "the affine's column " + std::to_string(c) + " is zero or not finite");
-  }
-  // Off-diagonal terms below 1e-9 of the voxel size are rounding (a quaternion of a rotation by
-  // 0 or 180 degrees gives 1e-17s): such an affine is aligned, and needs no Embree instance.
-  for (int c = 0; c < 3; ++c)
-    for (int r = 0; r < 3; ++r)
-      aligned = aligned && (r == c ? a[r][c] > 0 : std::fabs(a[r][c]) <= 1e-9 * spacing[c]);
-  for (int r = 0; r < 3; ++r)
-    if (!std::isfinite(a[r][3]) || std::fabs(a[r][3]) > 1e15)
-      throw InputError(file, where, "the affine's offset is not finite or beyond 1e15");
-  grid.setSpacing(spacing);
-  const Vec3d offset{a[0][3], a[1][3], a[2][3]};
-  if (aligned) {
-    grid.setOrigin(offset);
-    return;
-  }
-  double rows[12];
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) rows[r * 4 + c] = a[r][c] / spacing[c];
-    rows[r * 4 + 3] = a[r][3];
-  }
-  toWorld = Transform::fromRows(rows);
-  if (!(std::fabs(toWorld.determinant()) > 1e-9))
-    throw InputError(file, where, "the affine is singular (its axes are not independent)");
-}
-
 VolumeFile loadNifti(const std::string& path) {
   size_t fileSize;
   openFile(path, fileSize);  // missing file or a directory: the usual errors
-  nifti_set_debug_level(0);  // the library would print its own messages to stderr
-  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  nifti_set_debug_level(0);
+  int version = 0;
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nullptr, nifti_image_free);
+  {
+    QuietStderr quiet;
+    nim.reset(nifti_image_read(path.c_str(), 0));
+    if (nim) std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the layout, not the version
+  }
   if (!nim)
     throw InputError(path, "header", "not a readable NIfTI-1 or NIfTI-2 header (or its image file is missing)");
   VolumeFile out;
-  int version = 0;
-  std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the file layout, not the version
   out.format = nim->nifti_type == NIFTI_FTYPE_ANALYZE ? "ANALYZE 7.5" : version == 2 ? "NIfTI-2" : "NIfTI-1";
   int64_t frames = 1;
   for (int d = 4; d <= 7 && d <= nim->dim[0]; ++d) {
@@ -932,6 +931,39 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
 
 }  // namespace
 
+void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
+                   const std::string& where) {
+  Vec3d spacing;
+  bool aligned = true;
+  for (int c = 0; c < 3; ++c) {
+    spacing[c] = std::sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
+    if (!(spacing[c] > 0) || !std::isfinite(spacing[c]))
+      throw InputError(file, where, "the affine's column " + std::to_string(c) + " is zero or not finite");
+  }
+  // Off-diagonal terms below 1e-9 of the voxel size are rounding (a quaternion of a rotation by
+  // 0 or 180 degrees gives 1e-17s): such an affine is aligned, and needs no Embree instance.
+  for (int c = 0; c < 3; ++c)
+    for (int r = 0; r < 3; ++r)
+      aligned = aligned && (r == c ? a[r][c] > 0 : std::fabs(a[r][c]) <= 1e-9 * spacing[c]);
+  for (int r = 0; r < 3; ++r)
+    if (!std::isfinite(a[r][3]) || std::fabs(a[r][3]) > 1e15)
+      throw InputError(file, where, "the affine's offset is not finite or beyond 1e15");
+  grid.setSpacing(spacing);
+  const Vec3d offset{a[0][3], a[1][3], a[2][3]};
+  if (aligned) {
+    grid.setOrigin(offset);
+    return;
+  }
+  double rows[12];
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) rows[r * 4 + c] = a[r][c] / spacing[c];
+    rows[r * 4 + 3] = a[r][3];
+  }
+  toWorld = Transform::fromRows(rows);
+  if (!(std::fabs(toWorld.determinant()) > 1e-9))
+    throw InputError(file, where, "the affine is singular (its axes are not independent)");
+}
+
 bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
   static const std::regex pattern(R"(_(\d+)x(\d+)x(\d+)_([a-z0-9]+)\.raw(\.gz)?$)");
   std::smatch m;
@@ -947,10 +979,18 @@ bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
 }
 
 const char* volumeExtensions() {
-  return ".raw, .bin, .dat (each also .gz), .nrrd, .nhdr, .mhd, .mha, .vtk, .nii, .nii.gz, .hdr";
+  return ".raw, .bin, .dat (each also .gz), .nrrd, .nhdr, .mhd, .mha, .vtk, .nii, .nii.gz, .hdr, .dcm, .dicom, "
+         "or a folder of DICOM slices";
 }
 
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout) {
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const std::string& series) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) return loadDicom(path, series);  // a folder is a DICOM series
+  if (!series.empty()) {
+    const std::string n = lower(fs::path(path).filename().string());
+    if (!endsWith(n, ".dcm") && !endsWith(n, ".dicom"))
+      throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
+  }
   const std::string name = lower(fs::path(path).filename().string());
   auto wrap = [](Grid grid, const char* format) {
     VolumeFile f;
@@ -965,6 +1005,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout) {
     return loadNifti(path);
   for (const char* raw : {".raw", ".bin", ".dat"})
     if (endsWith(name, raw) || endsWith(name, std::string(raw) + ".gz")) return wrap(loadRaw(path, layout), "raw");
+  if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, series);
   if (endsWith(name, ".vdb")) throw InputError(path, "", "OpenVDB volumes are not supported yet");
   const std::string ext = fs::path(name).extension().string();
   throw InputError(path, "", (ext.empty() ? std::string("no file extension") : "unknown volume extension '" + ext + "'") +

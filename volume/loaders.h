@@ -1,7 +1,8 @@
 #pragma once
 // Volume file loaders: raw (layout given, or read from an Open SciVis file name), gzip raw,
 // NRRD (attached/detached headers, raw/gzip/ascii encodings, multi-file `data file:`),
-// MetaImage (.mhd/.mha), legacy VTK STRUCTURED_POINTS and NIfTI-1/2 (.nii, .nii.gz, .hdr/.img).
+// MetaImage (.mhd/.mha), legacy VTK STRUCTURED_POINTS, NIfTI-1/2 (.nii, .nii.gz, .hdr/.img) and
+// DICOM (a folder of slices or a multi-frame file).
 // Every failure is an InputError naming the file and, where there is one, the header line.
 #include <optional>
 #include <string>
@@ -32,13 +33,24 @@ struct VolumeFile {
 
 // The format is chosen by the file name's extension; an unknown one is an error that lists the
 // supported ones (never a silent guess of raw).
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {});
+// `series`: for a DICOM folder holding several series, the SeriesInstanceUID to read.
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const std::string& series = "");
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;
 }
 // The extensions readVolumeFile knows, for messages.
 const char* volumeExtensions();
+
+// DICOM (volume/dicom.cpp, GDCM): a folder is one series of single-frame slices (`series`
+// chooses when it holds several), a file one multi-frame volume.
+VolumeFile loadDicom(const std::string& path, const std::string& series = "");
+
+// Splits an index-to-world affine (3x4: voxel (i, j, k, 1) -> world) into the grid's spacing
+// (the columns' lengths), its origin (when the axes are the world's) and what is left as
+// `toWorld` (rotation, mirroring, shear). Throws InputError (file, where) for a degenerate one.
+void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
+                   const std::string& where);
 
 // Parses `name_256x256x128_uint8.raw[.gz]`; false if the name does not follow the convention.
 bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type);

@@ -1,0 +1,397 @@
+// DICOM through GDCM (libgdcm-dev): a folder holding one series of single-frame slices, or one
+// multi-frame file. GDCM because it decodes the compressed transfer syntaxes (JPEG, JPEG-LS,
+// JPEG 2000, RLE) with what Debian ships with it, gives the image's geometry (origin,
+// direction cosines, spacing, rescale) for single and multi-frame files alike, and scans a
+// folder's tags without reading pixel data; DCMTK needs separate codec set-up for each of those.
+// The only file that sees GDCM.
+#include <gdcmDirectory.h>
+#include <gdcmImageReader.h>
+#include <gdcmScanner.h>
+#include <gdcmTrace.h>
+#include <sys/mman.h>
+#include <sys/wait.h>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <sstream>
+
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+
+namespace iso {
+namespace {
+
+namespace fs = std::filesystem;
+
+const gdcm::Tag kSeriesUid(0x0020, 0x000e), kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037),
+    kModality(0x0008, 0x0060), kRows(0x0028, 0x0010), kColumns(0x0028, 0x0011);
+
+// "a\b\c" -> numbers; false unless exactly `n` finite numbers.
+bool parseNumbers(const char* text, size_t n, double* out) {
+  if (!text) return false;
+  std::string s(text);
+  std::replace(s.begin(), s.end(), '\\', ' ');
+  std::istringstream in(s);
+  size_t k = 0;
+  double v;
+  while (k < n && in >> v) out[k++] = v;
+  if (k != n) return false;
+  for (size_t i = 0; i < n; ++i)
+    if (!std::isfinite(out[i])) return false;
+  return true;
+}
+
+std::string trimmed(const char* text) {
+  std::string s = text ? text : "";
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
+  return s;
+}
+
+Vec3d cross3(const double a[3], const double b[3]) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+// Reads one image with GDCM, or says why not (the file and the transfer syntax).
+struct Decoded {
+  gdcm::ImageReader reader;
+  std::vector<char> buffer;
+  const gdcm::Image& image() const { return reader.GetImage(); }
+};
+void decode(const std::string& file, Decoded& d) {
+  d.reader.SetFileName(file.c_str());
+  if (!d.reader.Read()) throw InputError(file, "", "not a readable DICOM image (or its pixel data is missing)");
+  // GDCM reads a file cut short without complaint (the missing bytes come out as whatever the
+  // buffer held): the elements it read must fit in the file.
+  {
+    const gdcm::File& f = d.reader.GetFile();
+    const bool deflated = f.GetHeader().GetDataSetTransferSyntax().IsEncoded();  // stored smaller
+    const bool explicitVr = f.GetHeader().GetDataSetTransferSyntax().IsExplicit();
+    const uint64_t need = uint64_t(explicitVr ? f.GetDataSet().GetLength<gdcm::ExplicitDataElement>()
+                                              : f.GetDataSet().GetLength<gdcm::ImplicitDataElement>());
+    std::error_code ec;
+    const uint64_t have = fs::file_size(file, ec);
+    if (!ec && !deflated && have < need)
+      throw InputError(file, "", "is " + std::to_string(have) + " bytes, its elements need " + std::to_string(need) +
+                                     " (a truncated file)");
+  }
+  const gdcm::Image& im = d.image();
+  const gdcm::PixelFormat& pf = im.GetPixelFormat();
+  if (pf.GetSamplesPerPixel() != 1)
+    throw InputError(file, "SamplesPerPixel", "colour images are not supported (one sample per pixel)");
+  const size_t bytes = im.GetBufferLength();
+  const unsigned* dims = im.GetDimensions();
+  const size_t frames = im.GetNumberOfDimensions() > 2 ? dims[2] : 1;
+  const size_t expected = size_t(dims[0]) * dims[1] * frames * std::max<size_t>(1, pf.GetPixelSize());
+  if (bytes == 0 || bytes != expected || bytes > (size_t(1) << 34))
+    throw InputError(file, "PixelData", "holds " + std::to_string(bytes) + " bytes, the image's size asks for " +
+                                            std::to_string(expected));
+  if (!d.reader.GetFile().GetDataSet().FindDataElement(gdcm::Tag(0x7fe0, 0x0010)))
+    throw InputError(file, "PixelData", "missing");
+  d.buffer.resize(bytes);
+  if (!im.GetBuffer(d.buffer.data()))
+    throw InputError(file, "PixelData", std::string("cannot decode transfer syntax ") +
+                                            gdcm::TransferSyntax::GetTSString(im.GetTransferSyntax()));
+}
+
+// Appends the decoded samples of `d`, rescaled, to `out` as float32; names the first voxel
+// whose value is not finite.
+void appendRescaled(const Decoded& d, const std::string& file, std::vector<float>& out) {
+  const gdcm::Image& im = d.image();
+  const double slope = im.GetSlope(), intercept = im.GetIntercept();
+  if (!std::isfinite(slope) || !std::isfinite(intercept) || slope == 0)
+    throw InputError(file, "RescaleSlope", "rescale slope and intercept must be finite, the slope non-zero");
+  const size_t n = d.buffer.size() / std::max<size_t>(1, im.GetPixelFormat().GetPixelSize());
+  const char* p = d.buffer.data();
+  auto put = [&](auto sample) {
+    using T = decltype(sample);
+    for (size_t i = 0; i < n; ++i) {
+      T v;
+      std::memcpy(&v, p + i * sizeof(T), sizeof(T));
+      const float f = float(double(v) * slope + intercept);
+      if (!std::isfinite(f)) throw InputError(file, "sample " + std::to_string(i), "value is not finite after rescaling");
+      out.push_back(f);
+    }
+  };
+  switch (im.GetPixelFormat().GetScalarType()) {
+    case gdcm::PixelFormat::UINT8: put(uint8_t{}); break;
+    case gdcm::PixelFormat::INT8: put(int8_t{}); break;
+    case gdcm::PixelFormat::UINT16: put(uint16_t{}); break;
+    case gdcm::PixelFormat::INT16: put(int16_t{}); break;
+    case gdcm::PixelFormat::UINT32: put(uint32_t{}); break;
+    case gdcm::PixelFormat::INT32: put(int32_t{}); break;
+    case gdcm::PixelFormat::FLOAT32: put(float{}); break;
+    case gdcm::PixelFormat::FLOAT64: put(double{}); break;
+    default:
+      throw InputError(file, "BitsAllocated", std::string("pixel format ") +
+                                                  im.GetPixelFormat().GetScalarTypeAsString() + " is not supported");
+  }
+}
+
+// The affine of a volume from its first slice's position, the row and column directions, the
+// pixel spacing (between columns, between rows) and the slice step along the normal.
+void placeDicom(const double position[3], const double orientation[6], double columnSpacing, double rowSpacing,
+                const Vec3d& sliceStep, VolumeFile& out, const std::string& file) {
+  double a[3][4];
+  for (int r = 0; r < 3; ++r) {
+    a[r][0] = orientation[r] * columnSpacing;
+    a[r][1] = orientation[3 + r] * rowSpacing;
+    a[r][2] = sliceStep[r];
+    a[r][3] = position[r];
+  }
+  placeByAffine(a, out.grid, out.toWorld, file, "ImagePositionPatient/ImageOrientationPatient");
+}
+
+VolumeFile loadMultiFrame(const std::string& file) {
+  Decoded d;
+  decode(file, d);
+  const gdcm::Image& im = d.image();
+  const unsigned* dims = im.GetDimensions();
+  if (im.GetNumberOfDimensions() < 3 || dims[2] < 2)
+    throw InputError(file, "", "holds a single slice: a volume needs at least 2 (name the folder of its series)");
+  const Vec3i size{int(dims[0]), int(dims[1]), int(dims[2])};
+  if (size.x < 2 || size.y < 2) throw InputError(file, "Rows/Columns", "each dimension needs at least 2 samples");
+  std::vector<float> samples;
+  samples.reserve(size_t(size.x) * size.y * size.z);
+  appendRescaled(d, file, samples);
+  VolumeFile out;
+  out.format = "DICOM";
+  out.grid = Grid(size, std::move(samples));
+  const double* o = im.GetOrigin();
+  const double* dc = im.GetDirectionCosines();
+  const double* s = im.GetSpacing();
+  const Vec3d normal = cross3(dc, dc + 3);
+  placeDicom(o, dc, s[0], s[1], normal * s[2], out, file);
+  out.notes.push_back("multi-frame file, " + std::to_string(size.z) + " frames " + std::to_string(s[2]) +
+                      " mm apart; values rescaled to float32 (slope " + std::to_string(im.GetSlope()) + ", intercept " +
+                      std::to_string(im.GetIntercept()) + ")");
+  return out;
+}
+
+VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
+  gdcm::Directory directory;
+  directory.Load(folder, false);
+  std::vector<std::string> files = directory.GetFilenames();
+  std::sort(files.begin(), files.end());
+  gdcm::Scanner scanner;
+  for (const gdcm::Tag& t : {kSeriesUid, kPosition, kOrientation, kModality, kRows, kColumns}) scanner.AddTag(t);
+  if (!files.empty() && !scanner.Scan(files)) throw InputError(folder, "", "cannot scan the folder's files");
+  std::map<std::string, std::vector<std::string>> series;
+  for (const std::string& f : files)
+    if (scanner.IsKey(f.c_str())) series[trimmed(scanner.GetValue(f.c_str(), kSeriesUid))].push_back(f);
+  if (series.empty()) throw InputError(folder, "", "holds no DICOM files (the folder is read, not its subfolders)");
+  auto list = [&] {
+    std::string s;
+    for (const auto& [uid, members] : series)
+      s += (s.empty() ? "" : ", ") + (uid.empty() ? std::string("(no UID)") : uid) + " (" + std::to_string(members.size()) + " files)";
+    return s;
+  };
+  if (wanted.empty() && series.size() > 1)
+    throw InputError(folder, "", "holds " + std::to_string(series.size()) + " series; choose one with \"series\": " + list());
+  if (!wanted.empty() && !series.count(wanted))
+    throw InputError(folder, "", "no series '" + wanted + "'; the folder holds " + list());
+  const std::string uid = wanted.empty() ? series.begin()->first : wanted;
+  const std::vector<std::string>& members = series[uid];
+  if (members.size() == 1) return loadMultiFrame(members[0]);
+
+  // Geometry of every slice: one orientation and size for all, ordered by the position along
+  // the slice normal (never by file name or InstanceNumber).
+  struct Slice {
+    std::string file;
+    double position[3];
+    double along;
+  };
+  double orientation[6];
+  if (!parseNumbers(scanner.GetValue(members[0].c_str(), kOrientation), 6, orientation))
+    throw InputError(members[0], "ImageOrientationPatient", "missing or not 6 numbers");
+  const Vec3d normal = cross3(orientation, orientation + 3);
+  if (!(length(normal) > 0.99 && length(normal) < 1.01))
+    throw InputError(members[0], "ImageOrientationPatient", "row and column directions are not unit and orthogonal");
+  const std::string rows = trimmed(scanner.GetValue(members[0].c_str(), kRows));
+  const std::string columns = trimmed(scanner.GetValue(members[0].c_str(), kColumns));
+  std::vector<Slice> slices;
+  for (const std::string& f : members) {
+    Slice s{f, {}, 0};
+    double o[6];
+    if (!parseNumbers(scanner.GetValue(f.c_str(), kPosition), 3, s.position))
+      throw InputError(f, "ImagePositionPatient", "missing or not 3 numbers");
+    if (!parseNumbers(scanner.GetValue(f.c_str(), kOrientation), 6, o))
+      throw InputError(f, "ImageOrientationPatient", "missing or not 6 numbers");
+    for (int i = 0; i < 6; ++i)
+      if (std::fabs(o[i] - orientation[i]) > 1e-4)
+        throw InputError(f, "ImageOrientationPatient", "differs from the series' first slice (" + members[0] + ")");
+    if (trimmed(scanner.GetValue(f.c_str(), kRows)) != rows || trimmed(scanner.GetValue(f.c_str(), kColumns)) != columns)
+      throw InputError(f, "Rows/Columns", "differ from the series' first slice (" + members[0] + ")");
+    s.along = s.position[0] * normal.x + s.position[1] * normal.y + s.position[2] * normal.z;
+    slices.push_back(s);
+  }
+  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
+  std::vector<double> gaps;
+  for (size_t i = 0; i + 1 < slices.size(); ++i) {
+    gaps.push_back(slices[i + 1].along - slices[i].along);
+    if (gaps.back() <= 1e-3)
+      throw InputError(folder, "", "slices " + slices[i].file + " and " + slices[i + 1].file + " lie at the same position");
+  }
+  // The step is the median gap; every gap must be it within 1% (and a micrometre): a missing
+  // slice or a series of two interleaved stacks is an error naming where, never a stretched grid.
+  std::vector<double> sorted = gaps;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double step = sorted[sorted.size() / 2];
+  for (size_t i = 0; i < gaps.size(); ++i)
+    if (std::fabs(gaps[i] - step) > 0.01 * step + 1e-3) {
+      char text[160];
+      std::snprintf(text, sizeof text, "uneven slice gaps: %.4g mm between ", gaps[i]);
+      char tail[80];
+      std::snprintf(tail, sizeof tail, ", where the others are %.4g mm", step);
+      throw InputError(folder, "", text + slices[i].file + " and " + slices[i + 1].file + tail);
+    }
+
+  // Pixels, slice by slice, rescaled (Hounsfield units for CT).
+  std::vector<float> samples;
+  Vec3i size{0, 0, int(slices.size())};
+  double spacing[2] = {1, 1};
+  std::string syntax;
+  for (size_t k = 0; k < slices.size(); ++k) {
+    Decoded d;
+    decode(slices[k].file, d);
+    const unsigned* dims = d.image().GetDimensions();
+    if (d.image().GetNumberOfDimensions() > 2 && dims[2] > 1)
+      throw InputError(slices[k].file, "NumberOfFrames", "a multi-frame file inside a series of slices");
+    if (k == 0) {
+      size.x = int(dims[0]);
+      size.y = int(dims[1]);
+      if (size.x < 2 || size.y < 2) throw InputError(slices[k].file, "Rows/Columns", "each dimension needs at least 2 samples");
+      samples.reserve(size_t(size.x) * size.y * size.z);
+      spacing[0] = d.image().GetSpacing()[0];
+      spacing[1] = d.image().GetSpacing()[1];
+      syntax = gdcm::TransferSyntax::GetTSString(d.image().GetTransferSyntax());
+    } else if (int(dims[0]) != size.x || int(dims[1]) != size.y) {
+      throw InputError(slices[k].file, "Rows/Columns", "differ from the series' first slice");
+    }
+    appendRescaled(d, slices[k].file, samples);
+  }
+  VolumeFile out;
+  out.format = "DICOM";
+  out.grid = Grid(size, std::move(samples));
+  placeDicom(slices[0].position, orientation, spacing[0], spacing[1], normal * step, out, slices[0].file);
+  const std::string modality = trimmed(scanner.GetValue(slices[0].file.c_str(), kModality));
+  out.notes.push_back("series " + uid + ", modality " + (modality.empty() ? "unknown" : modality) + ", " +
+                      std::to_string(slices.size()) + " slices " + std::to_string(step) + " mm apart (" + syntax +
+                      "); values rescaled to float32");
+  return out;
+}
+
+VolumeFile readHere(const std::string& path, const std::string& series) {
+  // GDCM reports problems on stderr; isotrace reports them itself, in one line.
+  gdcm::Trace::SetWarning(false);
+  gdcm::Trace::SetError(false);
+  gdcm::Trace::SetDebug(false);
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) return loadSeries(path, series);
+  return loadMultiFrame(path);
+}
+
+// Debian builds GDCM with its assertions on, and a malformed file can trip one (seen on
+// pydicom's own test files: BitsAllocated 1, a truncated RT dose): abort() would take isotrace
+// down. So GDCM runs in a child process: the child reads the volume and hands back its samples
+// through a memfd and the rest (geometry, notes, or the InputError) through a pipe; if it dies,
+// the parent reports the file as malformed. The parent maps the samples: no copy.
+VolumeFile readIsolated(const std::string& path, const std::string& series) {
+  const int samplesFd = memfd_create("isotrace-dicom", MFD_CLOEXEC);
+  int pipeFds[2];
+  if (samplesFd < 0 || pipe2(pipeFds, O_CLOEXEC) != 0) throw InputError(path, "", "cannot set up the DICOM reader");
+  const pid_t pid = fork();
+  if (pid < 0) throw InputError(path, "", "cannot start the DICOM reader");
+  if (pid == 0) {  // the child: read, report, exit without running the parent's destructors
+    close(pipeFds[0]);
+    const int devNull = open("/dev/null", O_WRONLY);
+    if (devNull >= 0) dup2(devNull, 2);  // GDCM's assertion messages; the parent reports
+    std::string report;
+    auto putDoubles = [&](const double* v, int n) { report.append(reinterpret_cast<const char*>(v), size_t(n) * 8); };
+    try {
+      const VolumeFile v = readHere(path, series);
+      const size_t bytes = v.grid.bytes();
+      const char* data = static_cast<const char*>(v.grid.data());
+      bool written = ftruncate(samplesFd, off_t(bytes)) == 0;
+      for (size_t done = 0; written && done < bytes;) {
+        const ssize_t n = pwrite(samplesFd, data + done, bytes - done, off_t(done));
+        written = n > 0;
+        done += written ? size_t(n) : 0;
+      }
+      if (!written) _exit(3);
+      report = "ok";
+      const Vec3i d = v.grid.dims();
+      const double dims[3] = {double(d.x), double(d.y), double(d.z)};
+      putDoubles(dims, 3);
+      const Vec3d o = v.grid.origin(), sp = v.grid.spacing();
+      const double place[6] = {o.x, o.y, o.z, sp.x, sp.y, sp.z};
+      putDoubles(place, 6);
+      for (int r = 0; r < 3; ++r) putDoubles(v.toWorld.m[r], 4);
+      for (const std::string& note : v.notes) report += note + '\n';
+    } catch (const InputError& e) {
+      report = std::string("er") + e.what();
+    } catch (const std::exception& e) {
+      report = std::string("er") + path + ": cannot read: " + e.what();
+    }
+    for (size_t done = 0; done < report.size();) {
+      const ssize_t n = write(pipeFds[1], report.data() + done, report.size() - done);
+      if (n <= 0) _exit(3);
+      done += size_t(n);
+    }
+    _exit(0);
+  }
+  close(pipeFds[1]);
+  std::string report;
+  char buffer[4096];
+  for (ssize_t n; (n = read(pipeFds[0], buffer, sizeof buffer)) != 0;) {
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) break;
+    report.append(buffer, size_t(n));
+  }
+  close(pipeFds[0]);
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  struct Closer {
+    int fd;
+    ~Closer() { close(fd); }
+  } closer{samplesFd};
+  constexpr size_t kFixed = 2 + 9 * 8 + 12 * 8;
+  const bool exited = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+  if (exited && report.compare(0, 2, "er") == 0) throw InputError(report.substr(2));
+  if (!exited || report.compare(0, 2, "ok") != 0 || report.size() < kFixed)
+    throw InputError(path, "", "GDCM stopped reading it (an assertion or a crash inside the library): a malformed DICOM file");
+  double fixed[21];
+  std::memcpy(fixed, report.data() + 2, sizeof fixed);
+  const Vec3i dims{int(fixed[0]), int(fixed[1]), int(fixed[2])};
+  const size_t bytes = size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * sizeof(float);
+  void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, samplesFd, 0);
+  if (map == MAP_FAILED) throw InputError(path, "", "cannot map the DICOM samples");
+  std::shared_ptr<const void> samples(map, [bytes](const void* p) { munmap(const_cast<void*>(p), bytes); });
+  VolumeFile v;
+  v.format = "DICOM";
+  v.grid = Grid(dims, ScalarType::Float32, samples, {fixed[3], fixed[4], fixed[5]}, {fixed[6], fixed[7], fixed[8]});
+  double rows[12];
+  std::memcpy(rows, fixed + 9, sizeof rows);
+  v.toWorld = Transform::fromRows(rows);
+  std::istringstream notes(report.substr(kFixed));
+  for (std::string line; std::getline(notes, line);) v.notes.push_back(line);
+  return v;
+}
+
+}  // namespace
+
+VolumeFile loadDicom(const std::string& path, const std::string& series) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
+  if (!fs::is_directory(path, ec) && !series.empty())
+    throw InputError(path, "", "\"series\" chooses among the series of a folder; this is one file");
+  return readIsolated(path, series);
+}
+
+}  // namespace iso
