@@ -82,7 +82,7 @@ struct VolumeDesc {
   std::optional<Field> field;
   Vec3i resolution{64, 64, 64};
   RawLayout layout;
-  std::string series;  // DICOM folders holding several series: the SeriesInstanceUID to read
+  VolumePart part;  // which series of a DICOM folder, which grid of a VDB file
   std::optional<Vec3d> origin, spacing;
   Transform transform;  // applied after origin/spacing place the grid
   std::vector<IsoSurfaceDesc> isosurfaces;

@@ -443,7 +443,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     for (size_t i = 0; i < j->size(); ++i) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
-                      {"file", "procedural", "dims", "type", "endian", "series", "origin", "spacing", "transform",
+                      {"file", "procedural", "dims", "type", "endian", "series", "grid", "origin", "spacing", "transform",
                        "isosurfaces"});
       VolumeDesc v;
       v.where = vp;
@@ -470,8 +470,10 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
             vr.fail(vr.at("type"), "unknown type '" + name + "' (uint8, uint16, int16, float32)");
           v.layout.type = t;
         }
-        v.series = vr.string("series", "");
-        if (vr.has("series") && v.series.empty()) vr.fail(vr.at("series"), "empty series UID");
+        v.part.series = vr.string("series", "");
+        if (vr.has("series") && v.part.series.empty()) vr.fail(vr.at("series"), "empty series UID");
+        v.part.grid = vr.string("grid", "");
+        if (vr.has("grid") && v.part.grid.empty()) vr.fail(vr.at("grid"), "empty grid name");
         const std::string endian = vr.string("endian", "little");
         if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
         v.layout.bigEndian = endian == "big";

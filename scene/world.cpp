@@ -60,7 +60,7 @@ VolumeFile loadVolume(const VolumeDesc& desc) {
     v.grid = makeProceduralGrid(*desc.field, desc.resolution);
     v.format = "procedural";
   } else {
-    v = readVolumeFile(desc.file, desc.layout, desc.series);
+    v = readVolumeFile(desc.file, desc.layout, desc.part);
   }
   if (desc.origin) v.grid.setOrigin(*desc.origin);
   if (desc.spacing) v.grid.setSpacing(*desc.spacing);

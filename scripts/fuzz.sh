@@ -51,6 +51,7 @@ seed volume 9 $nibabel/example_nifti2.nii.gz
 pydicom=/usr/lib/python3/dist-packages/pydicom/data/test_files  # python3-pydicom's test files
 seed volume 10 $pydicom/rtdose.dcm
 seed volume 10 $pydicom/MR_small.dcm
+seed volume 11 $data/volumes/smoke.vdb
 seed gltf 0 $data/meshes/BoxTextured/BoxTextured.gltf
 seed gltf 1 $data/meshes/Box.glb
 seed gltf 2 $data/meshes/cornell/cornell_box.obj

@@ -7,6 +7,8 @@
 #include <gdcmTrace.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -254,7 +256,7 @@ TEST(DicomFiles, ASeriesIsOrderedByPositionAndPlacedInPatientSpace) {
 
 void expectDicomError(const std::string& path, const std::string& fragment, const std::string& series = "") {
   try {
-    readVolumeFile(path, {}, series);
+    readVolumeFile(path, {}, VolumePart{series, ""});
     FAIL() << "no error for " << path;
   } catch (const InputError& e) {
     const std::string msg = e.what();
@@ -271,8 +273,8 @@ TEST(DicomFiles, SeriesProblemsAreNamed) {
   series.writeAll(dir + "/two");
   for (int k = 0; k < 3; ++k) series.write(dir + "/two", k, "1.2.3.4", 0, "other");
   expectDicomError(dir + "/two", "holds 2 series; choose one with \"series\": 1.2.3.4 (3 files), 1.2.826.0.1.3680043.2.1125.1");
-  EXPECT_EQ(readVolumeFile(dir + "/two", {}, "1.2.826.0.1.3680043.2.1125.1").grid.dims().z, series.count);
-  EXPECT_EQ(readVolumeFile(dir + "/two", {}, "1.2.3.4").grid.dims().z, 3);
+  EXPECT_EQ(readVolumeFile(dir + "/two", {}, VolumePart{"1.2.826.0.1.3680043.2.1125.1", ""}).grid.dims().z, series.count);
+  EXPECT_EQ(readVolumeFile(dir + "/two", {}, VolumePart{"1.2.3.4", ""}).grid.dims().z, 3);
   expectDicomError(dir + "/two", "no series '9.9'; the folder holds 1.2.3.4 (3 files)", "9.9");
   // A missing slice: uneven gaps, naming the two slices around the hole.
   series.writeAll(dir + "/gap");
@@ -313,6 +315,89 @@ TEST(DicomFiles, MultiFrameRtDoseMatchesPydicom) {
     EXPECT_EQ(v.grid.spacing(), (Vec3d{10, 10, 5})) << name;
     EXPECT_TRUE(v.toWorld.isIdentity()) << name;
   }
+}
+
+// ---------------------------------------------------------------------------------------
+// OpenVDB
+
+// The Blender smoke frame: one float grid 'density', 71,983 active voxels. Every voxel of the
+// dense copy holds the tree's value at its index, and lands where the grid's transform puts it.
+TEST(VdbFiles, SmokeIsCopiedAndPlacedByItsTransform) {
+  const std::string file = test::dataPath("volumes/smoke.vdb");
+  const VolumeFile v = readVolumeFile(file);
+  EXPECT_EQ(v.format, "OpenVDB");
+  openvdb::initialize();
+  openvdb::io::File f(file);
+  f.open(false);
+  const openvdb::FloatGrid::Ptr grid = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("density"));
+  f.close();
+  ASSERT_TRUE(grid);
+  const openvdb::CoordBBox box = grid->evalActiveVoxelBoundingBox();
+  ASSERT_EQ(v.grid.dims(), (Vec3i{box.dim().x() + 2, box.dim().y() + 2, box.dim().z() + 2}));
+  const openvdb::Coord first = box.min() - openvdb::Coord(1);
+  auto accessor = grid->getConstAccessor();
+  double sum = 0;
+  for (int z = 0; z < v.grid.dims().z; ++z)
+    for (int y = 0; y < v.grid.dims().y; ++y)
+      for (int x = 0; x < v.grid.dims().x; ++x) {
+        const float want = accessor.getValue(first + openvdb::Coord(x, y, z));
+        ASSERT_EQ(v.grid.value(x, y, z), want) << x << " " << y << " " << z;
+        sum += want;
+      }
+  EXPECT_GT(sum, 1000.0);  // a real plume, not an empty copy
+  for (Vec3i ijk : {Vec3i{0, 0, 0}, Vec3i{10, 20, 30}, v.grid.dims() - Vec3i{1, 1, 1}}) {
+    const Vec3d p = v.toWorld.point(v.grid.origin() + Vec3d(ijk) * v.grid.spacing());
+    const openvdb::Vec3d want = grid->transform().indexToWorld(first + openvdb::Coord(ijk.x, ijk.y, ijk.z));
+    for (int r = 0; r < 3; ++r) EXPECT_NEAR(p[r], want[r], 1e-9);
+  }
+}
+
+// A level-set sphere written here beside a vector grid: the first scalar grid is the default,
+// "grid" picks by name, and the wrong names are listed.
+TEST(VdbFiles, GridsAreChosenByNameAndTheirErrorsNamed) {
+  openvdb::initialize();
+  const std::string dir = test::scratchDir();
+  openvdb::FloatGrid::Ptr sphere = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(2.0f, {1, 2, 3}, 0.1f);
+  sphere->setName("ball");
+  openvdb::Vec3SGrid::Ptr velocity = openvdb::Vec3SGrid::create();
+  velocity->setName("vel");
+  velocity->tree().setValue(openvdb::Coord(0, 0, 0), openvdb::Vec3s(1, 0, 0));
+  openvdb::GridPtrVec grids{velocity, sphere};
+  openvdb::io::File(dir + "/two.vdb").write(grids);
+
+  const VolumeFile v = readVolumeFile(dir + "/two.vdb");
+  EXPECT_TRUE(v.toWorld.isIdentity());  // a uniform scale: origin and spacing
+  EXPECT_NEAR(v.grid.spacing().x, 0.1, 1e-8);  // the voxel size is a float
+  // The centre is inside (negative), the band's far side outside (the background, positive).
+  EXPECT_LT(v.grid.interpolate((Vec3d{1, 2, 3} - v.grid.origin()) / v.grid.spacing()), -0.25);
+  EXPECT_GT(v.grid.interpolate((Vec3d{1, 2, 0.5} - v.grid.origin()) / v.grid.spacing()), 0.25);
+  EXPECT_EQ(readVolumeFile(dir + "/two.vdb", {}, VolumePart{"", "ball"}).grid.dims(), v.grid.dims());
+  auto expectError = [&](const std::string& path, const VolumePart& part, const std::string& fragment) {
+    try {
+      readVolumeFile(path, {}, part);
+      FAIL() << "no error for " << path;
+    } catch (const InputError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(path), std::string::npos) << msg;
+      EXPECT_NE(msg.find(fragment), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+  };
+  expectError(dir + "/two.vdb", {"", "smoke"}, "no grid 'smoke'; the file holds ball (float), vel (vec3s)");
+  expectError(dir + "/two.vdb", {"", "vel"}, "grid 'vel': is of type vec3s; float or double grids only");
+  // Two active voxels 4,000 apart: the dense copy would be 4000^3 samples.
+  openvdb::FloatGrid::Ptr far = openvdb::FloatGrid::create(0.f);
+  far->tree().setValue(openvdb::Coord(0, 0, 0), 1.f);
+  far->tree().setValue(openvdb::Coord(4000, 4000, 4000), 1.f);
+  openvdb::io::File(dir + "/far.vdb").write({far});
+  expectError(dir + "/far.vdb", {}, "is above 2^30 samples as a dense grid; sparse rendering of VDB grids is not built yet");
+  // Cut and garbage files.
+  const std::string bytes = readAll(test::dataPath("volumes/smoke.vdb"));
+  test::writeBytes(dir + "/cut.vdb", bytes.substr(0, bytes.size() / 2));
+  expectError(dir + "/cut.vdb", {}, "not a readable OpenVDB file");
+  test::writeBytes(dir + "/junk.vdb", std::string(1000, 'x'));
+  expectError(dir + "/junk.vdb", {}, "not a readable OpenVDB file");
+  expectError(test::dataPath("volumes/bucky_32x32x32_uint8.raw"), {"", "density"}, "\"grid\" applies to .vdb files only");
 }
 
 TEST(VolumeFormats, UnknownExtensionsAreErrorsNotRaw) {

@@ -980,18 +980,17 @@ bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
 
 const char* volumeExtensions() {
   return ".raw, .bin, .dat (each also .gz), .nrrd, .nhdr, .mhd, .mha, .vtk, .nii, .nii.gz, .hdr, .dcm, .dicom, "
-         "or a folder of DICOM slices";
+         ".vdb, or a folder of DICOM slices";
 }
 
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const std::string& series) {
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const VolumePart& part) {
   std::error_code ec;
-  if (fs::is_directory(path, ec)) return loadDicom(path, series);  // a folder is a DICOM series
-  if (!series.empty()) {
-    const std::string n = lower(fs::path(path).filename().string());
-    if (!endsWith(n, ".dcm") && !endsWith(n, ".dicom"))
-      throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
-  }
   const std::string name = lower(fs::path(path).filename().string());
+  const bool folder = fs::is_directory(path, ec);
+  if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
+    throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
+  if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
+  if (folder) return loadDicom(path, part.series);  // a folder is a DICOM series
   auto wrap = [](Grid grid, const char* format) {
     VolumeFile f;
     f.grid = std::move(grid);
@@ -1005,8 +1004,8 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
     return loadNifti(path);
   for (const char* raw : {".raw", ".bin", ".dat"})
     if (endsWith(name, raw) || endsWith(name, std::string(raw) + ".gz")) return wrap(loadRaw(path, layout), "raw");
-  if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, series);
-  if (endsWith(name, ".vdb")) throw InputError(path, "", "OpenVDB volumes are not supported yet");
+  if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, part.series);
+  if (endsWith(name, ".vdb")) return loadVdb(path, part.grid);
   const std::string ext = fs::path(name).extension().string();
   throw InputError(path, "", (ext.empty() ? std::string("no file extension") : "unknown volume extension '" + ext + "'") +
                                  " (supported: " + volumeExtensions() + ")");

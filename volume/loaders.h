@@ -33,8 +33,13 @@ struct VolumeFile {
 
 // The format is chosen by the file name's extension; an unknown one is an error that lists the
 // supported ones (never a silent guess of raw).
-// `series`: for a DICOM folder holding several series, the SeriesInstanceUID to read.
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const std::string& series = "");
+// Which volume of a file that holds several: a DICOM folder's series, a VDB file's grid (empty:
+// the only series; the first float or double grid).
+struct VolumePart {
+  std::string series;  // SeriesInstanceUID
+  std::string grid;    // VDB grid name
+};
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;
@@ -45,6 +50,9 @@ const char* volumeExtensions();
 // DICOM (volume/dicom.cpp, GDCM): a folder is one series of single-frame slices (`series`
 // chooses when it holds several), a file one multi-frame volume.
 VolumeFile loadDicom(const std::string& path, const std::string& series = "");
+// OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name), copied dense over its
+// active bounding box plus one voxel, placed by the grid's transform.
+VolumeFile loadVdb(const std::string& path, const std::string& grid = "");
 
 // Splits an index-to-world affine (3x4: voxel (i, j, k, 1) -> world) into the grid's spacing
 // (the columns' lengths), its origin (when the axes are the world's) and what is left as
