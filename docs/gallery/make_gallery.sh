@@ -28,6 +28,9 @@ render() { "$bin" render "$@" --quiet > /dev/null; }
 # The examples.
 render examples/default.json --resolution 320x240 --spp 16 -o $out/default.png
 render examples/cornell_torus.json --resolution 320x320 --spp 256 -o $out/cornell_torus.png
+render examples/mri_brain.json --resolution 320x240 --spp 64 -o $out/mri_brain.png
+render examples/smoke.json --resolution 240x320 --spp 64 -o $out/smoke.png
+render examples/cornell_obj.json --resolution 320x320 --spp 128 -o $out/cornell_obj.png
 render examples/ct_chest.json --resolution 320x240 --spp 128 -o $out/ct_chest.png
 render examples/ct_head.json --resolution 320x240 --spp 128 -o $out/ct_head.png
 render examples/engine_volume.json --resolution 320x240 --spp 64 -o $out/engine_volume.png
