@@ -21,7 +21,9 @@
 #include "scene/gltf.h"
 #include "scene/world.h"
 #include "tests/test_util.h"
+#include "volume/bricks.h"
 #include "volume/input_error.h"
+#include "volume/iso_surface.h"
 #include "volume/loaders.h"
 
 namespace iso {
@@ -320,35 +322,91 @@ TEST(DicomFiles, MultiFrameRtDoseMatchesPydicom) {
 // ---------------------------------------------------------------------------------------
 // OpenVDB
 
-// The Blender smoke frame: one float grid 'density', 71,983 active voxels. Every voxel of the
-// dense copy holds the tree's value at its index, and lands where the grid's transform puts it.
-TEST(VdbFiles, SmokeIsCopiedAndPlacedByItsTransform) {
+// The Blender smoke frame: one float grid 'density', 71,983 active voxels. Loaded sparse (the
+// default) and dense, every sample holds the tree's value at its index and lands where the
+// grid's transform puts it.
+TEST(VdbFiles, SmokeIsReadAndPlacedByItsTransform) {
   const std::string file = test::dataPath("volumes/smoke.vdb");
-  const VolumeFile v = readVolumeFile(file);
-  EXPECT_EQ(v.format, "OpenVDB");
   openvdb::initialize();
   openvdb::io::File f(file);
   f.open(false);
   const openvdb::FloatGrid::Ptr grid = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("density"));
   f.close();
   ASSERT_TRUE(grid);
-  const openvdb::CoordBBox box = grid->evalActiveVoxelBoundingBox();
-  ASSERT_EQ(v.grid.dims(), (Vec3i{box.dim().x() + 2, box.dim().y() + 2, box.dim().z() + 2}));
-  const openvdb::Coord first = box.min() - openvdb::Coord(1);
   auto accessor = grid->getConstAccessor();
-  double sum = 0;
-  for (int z = 0; z < v.grid.dims().z; ++z)
-    for (int y = 0; y < v.grid.dims().y; ++y)
-      for (int x = 0; x < v.grid.dims().x; ++x) {
-        const float want = accessor.getValue(first + openvdb::Coord(x, y, z));
-        ASSERT_EQ(v.grid.value(x, y, z), want) << x << " " << y << " " << z;
-        sum += want;
+  for (bool dense : {false, true}) {
+    const VolumeFile v = loadVdb(file, "", dense);
+    EXPECT_EQ(v.format, "OpenVDB");
+    EXPECT_EQ(v.grid.sparse() != nullptr, !dense);
+    // The index of sample (0, 0, 0), from where the placement puts it.
+    const openvdb::Vec3d i0 = grid->transform().worldToIndex(
+        [&] { const Vec3d p = v.toWorld.point(v.grid.origin()); return openvdb::Vec3d(p.x, p.y, p.z); }());
+    const openvdb::Coord first(int(std::lround(i0.x())), int(std::lround(i0.y())), int(std::lround(i0.z())));
+    const openvdb::CoordBBox active = grid->evalActiveVoxelBoundingBox();
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_LT(first[a], active.min()[a]) << "a voxel of background before the active box";
+      EXPECT_GT(first[a] + v.grid.dims()[a] - 1, active.max()[a]) << "and after it";
+    }
+    double sum = 0;
+    for (int z = 0; z < v.grid.dims().z; ++z)
+      for (int y = 0; y < v.grid.dims().y; ++y)
+        for (int x = 0; x < v.grid.dims().x; ++x) {
+          const float want = accessor.getValue(first + openvdb::Coord(x, y, z));
+          ASSERT_EQ(v.grid.value(x, y, z), want) << x << " " << y << " " << z << (dense ? " dense" : " sparse");
+          sum += want;
+        }
+    EXPECT_GT(sum, 1000.0);  // a real plume, not an empty copy
+    for (Vec3i ijk : {Vec3i{0, 0, 0}, Vec3i{10, 20, 30}, v.grid.dims() - Vec3i{1, 1, 1}}) {
+      const Vec3d p = v.toWorld.point(v.grid.origin() + Vec3d(ijk) * v.grid.spacing());
+      const openvdb::Vec3d want = grid->transform().indexToWorld(first + openvdb::Coord(ijk.x, ijk.y, ijk.z));
+      for (int r = 0; r < 3; ++r) EXPECT_NEAR(p[r], want[r], 1e-9);
+    }
+  }
+}
+
+// The sparse grid's traversal against a dense copy of the same samples: the same crossings,
+// bit for bit, closest and any hit, across brick seams and against the constant bricks.
+TEST(VdbFiles, SparseTraversalIsTheDenseOneBitForBit) {
+  const VolumeFile sparse = loadVdb(test::dataPath("volumes/smoke.vdb"));
+  ASSERT_TRUE(sparse.grid.sparse());
+  const Vec3i d = sparse.grid.dims();
+  std::vector<float> copy(sparse.grid.sampleCount());
+  for (int z = 0; z < d.z; ++z)
+    for (int y = 0; y < d.y; ++y)
+      for (int x = 0; x < d.x; ++x) copy[sparse.grid.index(x, y, z)] = sparse.grid.value(x, y, z);
+  const Grid dense(d, std::move(copy), sparse.grid.origin(), sparse.grid.spacing());
+  const BrickGrid sparseBricks(sparse.grid), denseBricks(dense);
+  EXPECT_EQ(sparseBricks.minValue(), denseBricks.minValue());
+  EXPECT_EQ(sparseBricks.maxValue(), denseBricks.maxValue());
+  for (double iso : {0.05, 0.2, 0.5}) {
+    const IsoSurface a(sparse.grid, sparseBricks, iso, IntersectorSpec{}), b(dense, denseBricks, iso, IntersectorSpec{});
+    ASSERT_EQ(a.activeBricks(), b.activeBricks());
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(0, 1);
+    const Vec3d lo = dense.origin(), size = Vec3d(d - Vec3i{1, 1, 1}) * dense.spacing();
+    int hits = 0;
+    for (int r = 0; r < 3000; ++r) {
+      const Vec3d from = lo + Vec3d{u(rng), u(rng), u(rng)} * size, to = lo + Vec3d{u(rng), u(rng), u(rng)} * size;
+      const Vec3d dir = to - from;
+      SurfaceHit ha, hb;
+      TraversalStats sa, sb;
+      const bool fa = a.intersect(from, dir, 0, 1e30, ha, sa), fb = b.intersect(from, dir, 0, 1e30, hb, sb);
+      ASSERT_EQ(fa, fb) << r;
+      if (fa) {
+        ++hits;
+        EXPECT_EQ(ha.t, hb.t) << r;
+        EXPECT_EQ(ha.normal, hb.normal) << r;
       }
-  EXPECT_GT(sum, 1000.0);  // a real plume, not an empty copy
-  for (Vec3i ijk : {Vec3i{0, 0, 0}, Vec3i{10, 20, 30}, v.grid.dims() - Vec3i{1, 1, 1}}) {
-    const Vec3d p = v.toWorld.point(v.grid.origin() + Vec3d(ijk) * v.grid.spacing());
-    const openvdb::Vec3d want = grid->transform().indexToWorld(first + openvdb::Coord(ijk.x, ijk.y, ijk.z));
-    for (int r = 0; r < 3; ++r) EXPECT_NEAR(p[r], want[r], 1e-9);
+      for (uint32_t p = 0; p < a.activeBricks().size(); p += 7)
+        ASSERT_EQ(a.occludedBrick(p, from, dir, 0, 1e30, sa), b.occludedBrick(p, from, dir, 0, 1e30, sb)) << r;
+    }
+    EXPECT_GT(hits, 100) << iso;
+    // Shading normals and values agree as well.
+    for (int r = 0; r < 200; ++r) {
+      const Vec3d p{u(rng) * (d.x - 1), u(rng) * (d.y - 1), u(rng) * (d.z - 1)};
+      EXPECT_EQ(sparse.grid.smoothGradient(p), dense.smoothGradient(p));
+      EXPECT_EQ(sparse.grid.interpolate(p), dense.interpolate(p));
+    }
   }
 }
 
@@ -366,6 +424,7 @@ TEST(VdbFiles, GridsAreChosenByNameAndTheirErrorsNamed) {
   openvdb::io::File(dir + "/two.vdb").write(grids);
 
   const VolumeFile v = readVolumeFile(dir + "/two.vdb");
+  EXPECT_TRUE(v.grid.sparse());
   EXPECT_TRUE(v.toWorld.isIdentity());  // a uniform scale: origin and spacing
   EXPECT_NEAR(v.grid.spacing().x, 0.1, 1e-8);  // the voxel size is a float
   // The centre is inside (negative), the band's far side outside (the background, positive).
@@ -385,12 +444,23 @@ TEST(VdbFiles, GridsAreChosenByNameAndTheirErrorsNamed) {
   };
   expectError(dir + "/two.vdb", {"", "smoke"}, "no grid 'smoke'; the file holds ball (float), vel (vec3s)");
   expectError(dir + "/two.vdb", {"", "vel"}, "grid 'vel': is of type vec3s; float or double grids only");
-  // Two active voxels 4,000 apart: the dense copy would be 4000^3 samples.
+  // Two active voxels 1,200 apart: the dense copy would be 1200^3 samples.
   openvdb::FloatGrid::Ptr far = openvdb::FloatGrid::create(0.f);
   far->tree().setValue(openvdb::Coord(0, 0, 0), 1.f);
-  far->tree().setValue(openvdb::Coord(4000, 4000, 4000), 1.f);
+  far->tree().setValue(openvdb::Coord(1200, 1200, 1200), 1.f);
   openvdb::io::File(dir + "/far.vdb").write({far});
-  expectError(dir + "/far.vdb", {}, "is above 2^30 samples as a dense grid; sparse rendering of VDB grids is not built yet");
+  // Sparse, two far voxels cost two bricks and a table; dense, the copy is refused.
+  const VolumeFile farSparse = readVolumeFile(dir + "/far.vdb");
+  // Each voxel is a corner of 8 bricks' blocks (a block holds its far faces too).
+  EXPECT_EQ(farSparse.grid.sparse()->blockCount(), 16u);
+  EXPECT_EQ(farSparse.grid.value(8, 8, 8), 1.f);  // sample 0 is index (-1, -1, -1) moved down to -8
+  EXPECT_EQ(farSparse.grid.value(9, 8, 8), 0.f);
+  try {
+    loadVdb(dir + "/far.vdb", "", true);
+    FAIL() << "no error for the dense copy";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("is above 2^30 samples as a dense grid"), std::string::npos) << e.what();
+  }
   // Cut and garbage files.
   const std::string bytes = readAll(test::dataPath("volumes/smoke.vdb"));
   test::writeBytes(dir + "/cut.vdb", bytes.substr(0, bytes.size() / 2));

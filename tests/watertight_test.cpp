@@ -56,7 +56,10 @@ INSTANTIATE_TEST_SUITE_P(
         WatertightCase{"gyroid", volume(R"("procedural": {"field": "gyroid", "resolution": [64, 64, 64]})", R"({"value": 0})")},
         WatertightCase{"marschner_lobb", volume(R"("procedural": {"field": "marschner_lobb", "resolution": [41, 41, 41]})", R"({"value": 0.5})")},
         // Thin noisy skin of a CT scan at an integer iso value on integer data.
-        WatertightCase{"lidc2_skin", volume(R"("file": ")" + test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz") + R"(")", R"({"value": 18})")}),
+        WatertightCase{"lidc2_skin", volume(R"("file": ")" + test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz") + R"(")", R"({"value": 18})")},
+        // A sparse OpenVDB grid: crossings across its stored blocks and against its constant
+        // bricks (the background), two iso values.
+        WatertightCase{"smoke_sparse_vdb", volume(R"("file": ")" + test::dataPath("volumes/smoke.vdb") + R"(")", R"({"value": 0.05}, {"value": 0.3})")}),
     [](const ::testing::TestParamInfo<WatertightCase>& info) { return std::string(info.param.name); });
 
 // What the check sees of the other intersectors. The float analytic solver (Schwarze) divides

@@ -51,7 +51,14 @@ Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec
     : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(type), m_samples(std::move(samples)),
       m_data(m_samples.get()) {}
 
+Grid::Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin, Vec3d spacing)
+    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(ScalarType::Float32), m_sparse(std::move(sparse)) {}
+
 void Grid::cellCorners(int x, int y, int z, float out[8]) const {
+  if (m_sparse) {
+    for (int c = 0; c < 8; ++c) out[c] = sparseValue(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2 & 1));
+    return;
+  }
   const size_t sx = 1, sy = size_t(m_dims.x), sz = size_t(m_dims.x) * m_dims.y;
   const size_t i = index(x, y, z);
   const size_t offsets[8] = {0, sx, sy, sx + sy, sz, sx + sz, sy + sz, sx + sy + sz};
@@ -60,19 +67,33 @@ void Grid::cellCorners(int x, int y, int z, float out[8]) const {
   });
 }
 
+// Calls f(v) for every sample (of the grid's type, or float for a sparse grid), in order.
+template <typename F>
+static void forEachSample(const Grid& g, F&& f) {
+  if (g.sparse()) {
+    const Vec3i d = g.dims();
+    for (int z = 0; z < d.z; ++z)
+      for (int y = 0; y < d.y; ++y)
+        for (int x = 0; x < d.x; ++x) f(g.value(x, y, z));
+    return;
+  }
+  g.visitSamples([&](const auto* v) {
+    for (size_t i = 0, n = g.sampleCount(); i < n; ++i) f(v[i]);
+  });
+}
+
 double Grid::sum() const {
   double s = 0;
-  visitSamples([&](const auto* v) {
-    for (size_t i = 0; i < sampleCount(); ++i) s += double(v[i]);
-  });
+  forEachSample(*this, [&](auto v) { s += double(v); });
   return s;
 }
 
 void Grid::range(float& lo, float& hi) const {
   lo = std::numeric_limits<float>::infinity();
   hi = -lo;
-  visitSamples([&](const auto* v) {
-    for (size_t i = 0; i < sampleCount(); ++i) { lo = std::min(lo, float(v[i])); hi = std::max(hi, float(v[i])); }
+  forEachSample(*this, [&](auto v) {
+    lo = std::min(lo, float(v));
+    hi = std::max(hi, float(v));
   });
 }
 
@@ -84,17 +105,14 @@ std::vector<double> Grid::quantiles(const std::vector<double>& q) const {
   std::vector<uint64_t> counts(kBins, 0);
   // Integer samples index their own bin (int16 shifted by 32768); floats a bin of the range.
   double binLo = 0, binWidth = 1;
-  visitSamples([&](const auto* v) {
-    using T = std::remove_const_t<std::remove_pointer_t<decltype(v)>>;
-    if constexpr (std::is_integral_v<T>) {
-      binLo = std::is_signed_v<T> ? -32768.0 : 0.0;
-      for (size_t i = 0; i < n; ++i) ++counts[size_t(int64_t(v[i]) - int64_t(binLo))];
-    } else {
-      binLo = lo;
-      binWidth = hi > lo ? (double(hi) - lo) / kBins : 1;
-      for (size_t i = 0; i < n; ++i)
-        ++counts[std::min(size_t((double(v[i]) - lo) / binWidth), size_t(kBins - 1))];
-    }
+  const bool integral = type() != ScalarType::Float32;
+  if (integral) binLo = type() == ScalarType::Int16 ? -32768.0 : 0.0;
+  else binLo = lo, binWidth = hi > lo ? (double(hi) - lo) / kBins : 1;
+  forEachSample(*this, [&](auto v) {
+    if constexpr (std::is_integral_v<decltype(v)>)
+      ++counts[size_t(int64_t(v) - int64_t(binLo))];
+    else
+      ++counts[std::min(size_t((double(v) - lo) / binWidth), size_t(kBins - 1))];
   });
   const bool exact = type() != ScalarType::Float32;
   std::vector<double> out;
@@ -140,6 +158,28 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
   for (int a = 0; a < 3; ++a) interior = interior && c[a] >= 1 && c[a] + 2 <= m_dims[a] - 1;
   const float w[3][2] = {{float(1 - f.x), float(f.x)}, {float(1 - f.y), float(f.y)}, {float(1 - f.z), float(f.z)}};
   Vec3d g{0, 0, 0};
+  if (m_sparse) {  // the same differences through value(): a sparse grid has no array to offset into
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3, d = (a + 2) % 3;
+      const bool lo = c[a] > 0, hi = c[a] + 2 <= m_dims[a] - 1;
+      float sum = 0;
+      for (int j = 0; j < 2; ++j)
+        for (int k = 0; k < 2; ++k) {
+          auto at = [&](int step) {
+            Vec3i q = c;
+            q[b] += j;
+            q[d] += k;
+            q[a] += step;
+            return value(q.x, q.y, q.z);
+          };
+          const float g0 = (at(1) - at(lo ? -1 : 0)) / (lo ? 2.f : 1.f);
+          const float g1 = (at(hi ? 2 : 1) - at(0)) / (hi ? 2.f : 1.f);
+          sum += w[b][j] * w[d][k] * (w[a][0] * g0 + w[a][1] * g1);
+        }
+      g[a] = sum;
+    }
+    return g;
+  }
   visitSamples([&](const auto* v) {
     const size_t base = index(c.x, c.y, c.z);
     for (int a = 0; a < 3; ++a) {

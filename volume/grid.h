@@ -1,6 +1,7 @@
 #pragma once
 // A regular grid of scalar samples kept in its source type (uint8, uint16, int16, float32),
 // x fastest, with its placement in world space (origin of sample 0, spacing between samples).
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -19,6 +20,22 @@ size_t scalarTypeSize(ScalarType type);
 // Accepts the names used by scene files and the Open SciVis convention; false if unknown.
 bool parseScalarType(const std::string& name, ScalarType& type);
 
+// The samples of a sparse grid (an OpenVDB tree), brick by brick: the bricks are those of
+// BrickGrid (8^3 cells), and a brick is either a block of 9^3 float32 samples (its cells' corners,
+// the faces it shares with its neighbours included, x fastest) or, where all of those are one
+// value (background, tiles), that value alone. A cell's 8 corners always lie in its brick's
+// block, and every sample a dense grid would hold is here with the same bits, so the traversal
+// finds the same crossings as on the dense grid (tests check it). The grid's dims - 1 are a
+// multiple of 8 on every axis.
+struct SparseSamples {
+  static constexpr int kBlock = 9;  // samples per block edge
+  Vec3i bricks;                     // per axis: (dims - 1) / 8
+  std::vector<int32_t> slot;        // per brick (x fastest): block index >= 0, or -1 - index into `uniform`
+  std::vector<float> blocks;        // 729 samples per stored block
+  std::vector<float> uniform;       // the values of the constant bricks
+  size_t blockCount() const { return blocks.size() / size_t(kBlock * kBlock * kBlock); }
+};
+
 class Grid {
  public:
   using Storage = std::variant<std::vector<uint8_t>, std::vector<uint16_t>,
@@ -30,6 +47,11 @@ class Grid {
   // into an uninitialised buffer: no zero-filling pass, no second copy).
   Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3d origin = {0, 0, 0},
        Vec3d spacing = {1, 1, 1});
+  // A sparse float32 grid; `dims - 1` must be 8 times `sparse.bricks`.
+  Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+  // Sparse grids have no dense array: data() is null and visitSamples must not be called;
+  // value(), cellCorners() and the statistics below work on both.
+  const SparseSamples* sparse() const { return m_sparse.get(); }
 
   Vec3i dims() const { return m_dims; }
   Vec3d origin() const { return m_origin; }
@@ -37,7 +59,7 @@ class Grid {
   void setOrigin(Vec3d origin) { m_origin = origin; }
   void setSpacing(Vec3d spacing) { m_spacing = spacing; }
   ScalarType type() const { return m_type; }
-  // The samples, of type type(), x fastest.
+  // The samples, of type type(), x fastest (dense grids only).
   const void* data() const { return m_data; }
   // Calls f(samples) with `samples` a `const T*` of the grid's own sample type: one switch for
   // the caller's whole loop (the traversal, brick ranges, mesh export) instead of one per value.
@@ -52,7 +74,11 @@ class Grid {
     return f(static_cast<const float*>(m_data));
   }
   size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
-  size_t bytes() const { return sampleCount() * scalarTypeSize(m_type); }
+  // Memory of the samples as held (a sparse grid: its blocks and brick table).
+  size_t bytes() const {
+    return m_sparse ? m_sparse->blocks.size() * 4 + m_sparse->slot.size() * 4 + m_sparse->uniform.size() * 4
+                    : sampleCount() * scalarTypeSize(m_type);
+  }
 
   size_t index(int x, int y, int z) const {
     return (size_t(z) * m_dims.y + size_t(y)) * m_dims.x + size_t(x);
@@ -60,6 +86,10 @@ class Grid {
   // Every source type converts to float exactly (uint16/int16 fit in 24 bits of mantissa),
   // so all cells sharing a corner see the same bits there.
   float value(size_t i) const {
+    if (m_sparse) {
+      const size_t x = i % size_t(m_dims.x), y = (i / size_t(m_dims.x)) % size_t(m_dims.y);
+      return sparseValue(int(x), int(y), int(i / (size_t(m_dims.x) * m_dims.y)));
+    }
     switch (m_type) {
       case ScalarType::UInt8: return static_cast<const uint8_t*>(m_data)[i];
       case ScalarType::UInt16: return static_cast<const uint16_t*>(m_data)[i];
@@ -68,7 +98,7 @@ class Grid {
     }
     return 0.f;
   }
-  float value(int x, int y, int z) const { return value(index(x, y, z)); }
+  float value(int x, int y, int z) const { return m_sparse ? sparseValue(x, y, z) : value(index(x, y, z)); }
   // The 8 corners of cell (x, y, z); corner c = bit0 x, bit1 y, bit2 z.
   void cellCorners(int x, int y, int z, float out[8]) const;
   // The cell holding continuous grid coordinates `p` (clamped to the grid) and p's cell-local
@@ -98,6 +128,15 @@ class Grid {
   ScalarType m_type = ScalarType::UInt8;
   std::shared_ptr<const void> m_samples;
   const void* m_data = nullptr;
+  std::shared_ptr<const SparseSamples> m_sparse;
+  float sparseValue(int x, int y, int z) const {
+    const SparseSamples& s = *m_sparse;
+    const int bx = std::min(x / 8, s.bricks.x - 1), by = std::min(y / 8, s.bricks.y - 1), bz = std::min(z / 8, s.bricks.z - 1);
+    const int32_t slot = s.slot[(size_t(bz) * s.bricks.y + by) * s.bricks.x + bx];
+    if (slot < 0) return s.uniform[size_t(-1 - slot)];
+    constexpr int k = SparseSamples::kBlock;
+    return s.blocks[size_t(slot) * k * k * k + (size_t(z - 8 * bz) * k + size_t(y - 8 * by)) * k + size_t(x - 8 * bx)];
+  }
 };
 
 }  // namespace iso

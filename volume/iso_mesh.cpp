@@ -40,11 +40,37 @@ IsoMesh extractIsoMesh(const Grid& grid, double iso) {
   // the box, dropped below.
   const openvdb::CoordBBox box(openvdb::Coord(0, 0, 0), openvdb::Coord(d.x - 1, d.y - 1, d.z - 1));
   openvdb::FloatGrid::Ptr vdb = openvdb::FloatGrid::create(float(iso) - 1.f);
-  grid.visitSamples([&](const auto* samples) {
-    using T = std::remove_const_t<std::remove_pointer_t<decltype(samples)>>;
-    openvdb::tools::Dense<T, openvdb::tools::LayoutXYZ> dense(box, const_cast<T*>(samples));
-    openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/float(0));
-  });
+  if (const SparseSamples* sparse = grid.sparse()) {
+    // Brick by brick: a constant brick as one filled box, a block voxel by voxel (each brick
+    // writes its samples [8b, 8b + 8), the last one on an axis its far face too).
+    auto acc = vdb->getAccessor();
+    constexpr int k = SparseSamples::kBlock;
+    const Vec3i n = sparse->bricks;
+    for (int bz = 0; bz < n.z; ++bz)
+      for (int by = 0; by < n.y; ++by)
+        for (int bx = 0; bx < n.x; ++bx) {
+          const int32_t slot = sparse->slot[(size_t(bz) * n.y + by) * n.x + bx];
+          const Vec3i lo{8 * bx, 8 * by, 8 * bz};
+          const Vec3i hi{bx + 1 == n.x ? 8 : 7, by + 1 == n.y ? 8 : 7, bz + 1 == n.z ? 8 : 7};
+          if (slot < 0) {
+            vdb->tree().fill(openvdb::CoordBBox(openvdb::Coord(lo.x, lo.y, lo.z),
+                                                openvdb::Coord(lo.x + hi.x, lo.y + hi.y, lo.z + hi.z)),
+                             sparse->uniform[size_t(-1 - slot)], true);
+            continue;
+          }
+          const float* block = sparse->blocks.data() + size_t(slot) * k * k * k;
+          for (int z = 0; z <= hi.z; ++z)
+            for (int y = 0; y <= hi.y; ++y)
+              for (int x = 0; x <= hi.x; ++x)
+                acc.setValue(openvdb::Coord(lo.x + x, lo.y + y, lo.z + z), block[(z * k + y) * k + x]);
+        }
+  } else {
+    grid.visitSamples([&](const auto* samples) {
+      using T = std::remove_const_t<std::remove_pointer_t<decltype(samples)>>;
+      openvdb::tools::Dense<T, openvdb::tools::LayoutXYZ> dense(box, const_cast<T*>(samples));
+      openvdb::tools::copyFromDense(dense, *vdb, /*tolerance=*/float(0));
+    });
+  }
   std::vector<openvdb::Vec3s> points;
   std::vector<openvdb::Vec3I> triangles;
   std::vector<openvdb::Vec4I> quads;

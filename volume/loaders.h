@@ -50,9 +50,10 @@ const char* volumeExtensions();
 // DICOM (volume/dicom.cpp, GDCM): a folder is one series of single-frame slices (`series`
 // chooses when it holds several), a file one multi-frame volume.
 VolumeFile loadDicom(const std::string& path, const std::string& series = "");
-// OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name), copied dense over its
-// active bounding box plus one voxel, placed by the grid's transform.
-VolumeFile loadVdb(const std::string& path, const std::string& grid = "");
+// OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name) over its active
+// bounding box plus one voxel, placed by the grid's transform; sparse (Grid::sparse()), or a
+// dense copy when `dense` (tests compare the two).
+VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool dense = false);
 
 // Splits an index-to-world affine (3x4: voxel (i, j, k, 1) -> world) into the grid's spacing
 // (the columns' lengths), its origin (when the axes are the world's) and what is left as

@@ -73,21 +73,31 @@ struct CellClasses {
   uint64_t negative[8] = {};
 };
 
-// A grid's cells read in its own sample type (a template parameter, so that the fetch of the
-// 8 corners is inlined into the traversal, without a switch per cell), plus the class table
-// of the brick being traversed, if any.
-template <typename Sample>
-struct CellAccess {
-  const Sample* data = nullptr;
-  Vec3i dims;
-  size_t sy = 0, sz = 0;                 // strides of y and z, in samples
+// The class table of the brick being traversed, if any: +1 all corners strictly inside, -1
+// all strictly outside, 0 unknown (load them).
+struct BrickClassLookup {
   const CellClasses* classes = nullptr;  // of the brick whose first cell is `classOrigin`
   Vec3i classOrigin;
+  int uniformClass(const Vec3i& c) const {
+    if (!classes) return 0;
+    const int x = c.x - classOrigin.x, y = c.y - classOrigin.y, z = c.z - classOrigin.z;
+    const uint64_t bit = uint64_t(1) << (y * 8 + x);
+    return (classes->positive[z] & bit) ? 1 : (classes->negative[z] & bit) ? -1 : 0;
+  }
+};
+
+// A dense grid's cells read in its own sample type (a template parameter, so that the fetch of
+// the 8 corners is inlined into the traversal, without a switch per cell).
+template <typename Sample>
+struct CellAccess : BrickClassLookup {
+  const Sample* data = nullptr;
+  Vec3i dims;
+  size_t sy = 0, sz = 0;  // strides of y and z, in samples
 
   CellAccess(const Grid& grid, const Sample* samples, const CellClasses* brickClasses = nullptr,
              Vec3i brickOrigin = {})
-      : data(samples), dims(grid.dims()), sy(size_t(dims.x)),
-        sz(size_t(dims.x) * size_t(dims.y)), classes(brickClasses), classOrigin(brickOrigin) {}
+      : BrickClassLookup{brickClasses, brickOrigin}, data(samples), dims(grid.dims()), sy(size_t(dims.x)),
+        sz(size_t(dims.x) * size_t(dims.y)) {}
 
   // Corner c = bit0 x, bit1 y, bit2 z; values minus the iso value. Every sample type converts
   // to float exactly, and float to double, so all precisions see the same corner values.
@@ -103,18 +113,45 @@ struct CellAccess {
     g[6] = Real(float(p[sz + sy])) - iso;
     g[7] = Real(float(p[sz + sy + 1])) - iso;
   }
-  // +1: all corners strictly inside, -1: all strictly outside, 0: unknown (load them).
-  int uniformClass(const Vec3i& c) const {
-    if (!classes) return 0;
-    const int x = c.x - classOrigin.x, y = c.y - classOrigin.y, z = c.z - classOrigin.z;
-    const uint64_t bit = uint64_t(1) << (y * 8 + x);
-    return (classes->positive[z] & bit) ? 1 : (classes->negative[z] & bit) ? -1 : 0;
+};
+
+// A sparse grid's cells: the 8 corners from the cell's brick block (or its one value), the
+// same bits a dense copy of the grid would give.
+struct SparseCellAccess : BrickClassLookup {
+  const SparseSamples* sparse;
+  Vec3i dims;
+
+  SparseCellAccess(const Grid& grid, const CellClasses* brickClasses = nullptr, Vec3i brickOrigin = {})
+      : BrickClassLookup{brickClasses, brickOrigin}, sparse(grid.sparse()), dims(grid.dims()) {}
+
+  template <typename Real>
+  void load(const Vec3i& c, Real iso, Real g[8]) const {
+    constexpr size_t k = SparseSamples::kBlock;
+    const int32_t slot =
+        sparse->slot[(size_t(c.z >> 3) * sparse->bricks.y + size_t(c.y >> 3)) * sparse->bricks.x + size_t(c.x >> 3)];
+    if (slot < 0) {
+      const Real v = Real(sparse->uniform[size_t(-1 - slot)]) - iso;
+      for (int i = 0; i < 8; ++i) g[i] = v;
+      return;
+    }
+    const float* p = sparse->blocks.data() + size_t(slot) * k * k * k + (size_t(c.z & 7) * k + size_t(c.y & 7)) * k +
+                     size_t(c.x & 7);
+    g[0] = Real(p[0]) - iso;
+    g[1] = Real(p[1]) - iso;
+    g[2] = Real(p[k]) - iso;
+    g[3] = Real(p[k + 1]) - iso;
+    g[4] = Real(p[k * k]) - iso;
+    g[5] = Real(p[k * k + 1]) - iso;
+    g[6] = Real(p[k * k + k]) - iso;
+    g[7] = Real(p[k * k + k + 1]) - iso;
   }
 };
 
-// Calls f(CellAccess<Sample>(...)) for the grid's sample type: the one switch per query.
+// Calls f(cells) with the grid's cell access (CellAccess<its sample type>, or SparseCellAccess):
+// the one switch per query.
 template <typename F>
 inline decltype(auto) withCellAccess(const Grid& grid, const CellClasses* classes, Vec3i origin, F&& f) {
+  if (grid.sparse()) return f(SparseCellAccess(grid, classes, origin));
   return grid.visitSamples([&](const auto* samples) { return f(CellAccess(grid, samples, classes, origin)); });
 }
 
@@ -130,8 +167,8 @@ inline Real approachSide(const Cubic<Real>& c, Real flat) {
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 // `start` applies where the query starts at tnear inside the box (not at a face of it).
-template <bool AnyHit, typename Real, typename Intersector, typename Sample>
-bool traverseCells(const CellAccess<Sample>& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
+template <bool AnyHit, typename Real, typename Intersector, typename Cells>
+bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
                    TraversalStats& stats, StartClass start = StartClass::Unknown) {
   if (!ray.valid() || !(tnear <= tfar)) return false;

@@ -1,11 +1,14 @@
-// OpenVDB files (.vdb): one scalar grid, copied to a dense float32 grid over its active voxels'
-// bounding box (plus one voxel of background around it, so that a level set closes), placed by
-// the grid's own transform. Sparse rendering (memory in proportion to the active voxels) is not
-// built yet: the dense copy is refused above 2^30 samples. The only file that reads VDB files.
+// OpenVDB files (.vdb): one scalar grid, placed by its own transform, held sparse: the bricks
+// (8^3 cells) whose samples vary become 9^3 blocks, every other brick is one value (a tile's or
+// the background's), so memory follows the leaves, not the bounding box. Over the active
+// voxels' box plus one voxel of background (a level set closes against it). A dense copy
+// (tests compare the two) is also here. The only file that reads VDB files.
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Dense.h>
 
+#include <cstring>
 #include <filesystem>
+#include <map>
 
 #include "volume/input_error.h"
 #include "volume/loaders.h"
@@ -17,6 +20,30 @@ namespace fs = std::filesystem;
 
 constexpr double kMaxDenseSamples = double(1 << 30);  // 4 GiB of float32
 
+// Index space to world through the grid's transform: sample (i, j, k) of the grid is index
+// `first` + (i, j, k).
+void place(const openvdb::GridBase& grid, const openvdb::Coord& first, VolumeFile& out, const std::string& path) {
+  const openvdb::math::Transform& t = grid.transform();
+  if (!t.isLinear()) throw InputError(path, "grid '" + grid.getName() + "'", "a non-linear (frustum) transform is not supported");
+  const openvdb::Vec3d o = t.indexToWorld(first.asVec3d());
+  double a[3][4];
+  for (int c = 0; c < 3; ++c) {
+    openvdb::Vec3d step = first.asVec3d();
+    step[c] += 1;
+    const openvdb::Vec3d axis = t.indexToWorld(step) - o;
+    for (int r = 0; r < 3; ++r) a[r][c] = axis[r];
+  }
+  for (int r = 0; r < 3; ++r) a[r][3] = o[r];
+  placeByAffine(a, out.grid, out.toWorld, path, "grid '" + grid.getName() + "' transform");
+}
+
+template <typename GridT>
+std::string describe(const GridT& grid) {
+  return "grid '" + grid.getName() + "' (" + grid.valueType() + ", " +
+         (grid.getGridClass() == openvdb::GRID_LEVEL_SET ? "level set" : "fog volume or other") + "), " +
+         std::to_string(grid.activeVoxelCount()) + " active voxels, background " + std::to_string(double(grid.background()));
+}
+
 template <typename GridT>
 VolumeFile toDense(const GridT& grid, const std::string& path) {
   openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
@@ -27,8 +54,7 @@ VolumeFile toDense(const GridT& grid, const std::string& path) {
   if (samples > kMaxDenseSamples)
     throw InputError(path, "grid '" + grid.getName() + "'",
                      "its active bounding box (" + std::to_string(size.x()) + "x" + std::to_string(size.y()) + "x" +
-                         std::to_string(size.z()) + ") is above 2^30 samples as a dense grid; sparse rendering of "
-                         "VDB grids is not built yet");
+                         std::to_string(size.z()) + ") is above 2^30 samples as a dense grid");
   std::vector<float> values(static_cast<size_t>(samples));
   openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(box, values.data());
   openvdb::tools::copyToDense(grid, dense);
@@ -38,30 +64,117 @@ VolumeFile toDense(const GridT& grid, const std::string& path) {
   VolumeFile out;
   out.format = "OpenVDB";
   out.grid = Grid(Vec3i{size.x(), size.y(), size.z()}, std::move(values));
-  // Index space to world through the grid's transform: voxel (i, j, k) of the copy is index
-  // box.min() + (i, j, k).
-  const openvdb::math::Transform& t = grid.transform();
-  if (!t.isLinear()) throw InputError(path, "grid '" + grid.getName() + "'", "a non-linear (frustum) transform is not supported");
-  const openvdb::Vec3d o = t.indexToWorld(box.min().asVec3d());
-  double a[3][4];
-  for (int c = 0; c < 3; ++c) {
-    openvdb::Vec3d step = box.min().asVec3d();
-    step[c] += 1;
-    const openvdb::Vec3d axis = t.indexToWorld(step) - o;
-    for (int r = 0; r < 3; ++r) a[r][c] = axis[r];
+  place(grid, box.min(), out, path);
+  out.notes.push_back(describe(grid) + "; held dense over the active box plus one voxel");
+  return out;
+}
+
+// Index-space origin and size of the sparse grid: the active box plus one voxel, its origin
+// moved down to a multiple of 8 so that bricks line up with the tree's leaves and tiles, its
+// size up to whole bricks.
+struct SparseLayout {
+  openvdb::Coord origin;
+  Vec3i bricks;
+};
+
+template <typename GridT>
+VolumeFile toSparse(const GridT& grid, const std::string& path) {
+  openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
+  if (box.empty()) throw InputError(path, "grid '" + grid.getName() + "'", "has no active voxels");
+  box.expand(1);
+  auto down8 = [](int v) { return v >= 0 ? v / 8 * 8 : -((-v + 7) / 8 * 8); };
+  const openvdb::Coord origin(down8(box.min().x()), down8(box.min().y()), down8(box.min().z()));
+  Vec3i bricks;
+  for (int a = 0; a < 3; ++a) {
+    const int64_t cells = int64_t(box.max()[a]) - origin[a];
+    bricks[a] = int(std::max<int64_t>(1, (cells + 7) / 8));
+    if (bricks[a] > (1 << 17)) throw InputError(path, "grid '" + grid.getName() + "'", "its active box is beyond 2^20 voxels on an axis");
   }
-  for (int r = 0; r < 3; ++r) a[r][3] = o[r];
-  placeByAffine(a, out.grid, out.toWorld, path, "grid '" + grid.getName() + "' transform");
-  out.notes.push_back("grid '" + grid.getName() + "' (" + grid.valueType() + ", " +
-                      (grid.getGridClass() == openvdb::GRID_LEVEL_SET ? "level set" : "fog volume or other") +
-                      "), " + std::to_string(grid.activeVoxelCount()) + " active voxels, background " +
-                      std::to_string(double(grid.background())) + "; held dense over the active box plus one voxel");
+  const size_t brickCount = size_t(bricks.x) * bricks.y * bricks.z;
+  if (brickCount > (size_t(1) << 28))
+    throw InputError(path, "grid '" + grid.getName() + "'", "its active box holds more than 2^28 bricks of 8^3 voxels");
+  // Bricks whose block reaches into a leaf: a leaf at 8m (relative) is read by bricks m - 1 and m.
+  std::vector<uint8_t> touched(brickCount, 0);
+  auto brickIndex = [&](int x, int y, int z) { return (size_t(z) * bricks.y + y) * bricks.x + x; };
+  for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+    const openvdb::Coord m = (leaf->origin() - origin) >> 3;
+    for (int z = m.z() - 1; z <= m.z(); ++z)
+      for (int y = m.y() - 1; y <= m.y(); ++y)
+        for (int x = m.x() - 1; x <= m.x(); ++x)
+          if (x >= 0 && y >= 0 && z >= 0 && x < bricks.x && y < bricks.y && z < bricks.z) touched[brickIndex(x, y, z)] = 1;
+  }
+  auto sparse = std::make_shared<SparseSamples>();
+  sparse->bricks = bricks;
+  sparse->slot.resize(brickCount);
+  constexpr int k = SparseSamples::kBlock;
+  std::map<uint32_t, int32_t> uniformOf;  // by the value's bits
+  auto uniform = [&](float v) {
+    uint32_t bits;
+    std::memcpy(&bits, &v, 4);
+    auto [it, added] = uniformOf.emplace(bits, int32_t(sparse->uniform.size()));
+    if (added) sparse->uniform.push_back(v);
+    return -1 - it->second;
+  };
+  auto accessor = grid.getConstAccessor();
+  auto base = [&](int bx, int by, int bz) { return origin + openvdb::Coord(8 * bx, 8 * by, 8 * bz); };
+  // Fills a brick's block from the tree; true if its samples are not all one value.
+  auto fill = [&](const openvdb::Coord& at, float* block) {
+    bool varies = false;
+    for (int z = 0; z < k; ++z)
+      for (int y = 0; y < k; ++y)
+        for (int x = 0; x < k; ++x) {
+          const float v = float(accessor.getValue(at + openvdb::Coord(x, y, z)));
+          block[(z * k + y) * k + x] = v;
+          varies = varies || v != block[0];
+        }
+    return varies;
+  };
+  // Two passes, so that the blocks are allocated once at their exact size (a growing or
+  // shrunk vector would hold twice the memory for a moment): first which bricks vary, then
+  // their blocks.
+  float block[k * k * k];
+  size_t stored = 0;
+  for (int bz = 0; bz < bricks.z; ++bz)
+    for (int by = 0; by < bricks.y; ++by)
+      for (int bx = 0; bx < bricks.x; ++bx) {
+        const size_t b = brickIndex(bx, by, bz);
+        const openvdb::Coord at = base(bx, by, bz);
+        bool varies;
+        if (touched[b]) {
+          varies = fill(at, block);
+        } else {
+          // Only tiles and background here, all aligned to 8: the block's 8 regions are those
+          // of its 8 corners, so equal corners make a constant block.
+          block[0] = float(accessor.getValue(at));
+          varies = false;
+          for (int c = 1; c < 8 && !varies; ++c)
+            varies = float(accessor.getValue(at + openvdb::Coord(c & 1 ? 8 : 0, c & 2 ? 8 : 0, c & 4 ? 8 : 0))) != block[0];
+        }
+        sparse->slot[b] = varies ? int32_t(stored++) : uniform(block[0]);
+      }
+  sparse->blocks.resize(stored * k * k * k);
+  for (int bz = 0; bz < bricks.z; ++bz)
+    for (int by = 0; by < bricks.y; ++by)
+      for (int bx = 0; bx < bricks.x; ++bx) {
+        const int32_t slot = sparse->slot[brickIndex(bx, by, bz)];
+        if (slot >= 0) fill(base(bx, by, bz), sparse->blocks.data() + size_t(slot) * k * k * k);
+      }
+  for (float v : sparse->blocks)
+    if (!std::isfinite(v)) throw InputError(path, "grid '" + grid.getName() + "'", "a value is not finite");
+  for (float v : sparse->uniform)
+    if (!std::isfinite(v)) throw InputError(path, "grid '" + grid.getName() + "'", "a tile or background value is not finite");
+  VolumeFile out;
+  out.format = "OpenVDB";
+  out.grid = Grid(Vec3i{8 * bricks.x + 1, 8 * bricks.y + 1, 8 * bricks.z + 1}, std::move(sparse));
+  place(grid, origin, out, path);
+  out.notes.push_back(describe(grid) + "; held sparse: " + std::to_string(stored) + " of " + std::to_string(brickCount) +
+                      " bricks of 8^3 cells stored, the others one value each");
   return out;
 }
 
 }  // namespace
 
-VolumeFile loadVdb(const std::string& path, const std::string& gridName) {
+VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool dense) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
@@ -85,9 +198,9 @@ VolumeFile loadVdb(const std::string& path, const std::string& gridName) {
     file.close();
     VolumeFile out;
     if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(grid))
-      out = toDense(*f, path);
+      out = dense ? toDense(*f, path) : toSparse(*f, path);
     else if (auto d = openvdb::gridPtrCast<openvdb::DoubleGrid>(grid))
-      out = toDense(*d, path);
+      out = dense ? toDense(*d, path) : toSparse(*d, path);
     else
       throw InputError(path, "grid '" + chosen->getName() + "'", "is of type " + grid->valueType() + "; float or double grids only");
     out.notes.push_back("grids in the file: " + names);
