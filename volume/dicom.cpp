@@ -145,6 +145,7 @@ void placeDicom(const double position[3], const double orientation[6], double co
     a[r][3] = position[r];
   }
   placeByAffine(a, out.grid, out.toWorld, file, "ImagePositionPatient/ImageOrientationPatient");
+  out.notes.push_back("patient space (LPS, mm): " + describeAffine(a));
 }
 
 VolumeFile loadMultiFrame(const std::string& file) {

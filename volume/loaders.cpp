@@ -888,12 +888,9 @@ VolumeFile loadNifti(const std::string& path) {
   }
   const std::string where = sform ? "srow_x/y/z" : qform ? "quatern_b/c/d, qoffset" : "pixdim";
   placeByAffine(a, out.grid, out.toWorld, path, where);
-  char text[400];
-  std::snprintf(text, sizeof text, "%s (%s): voxel (i, j, k) at [%g %g %g %g; %g %g %g %g; %g %g %g %g] (i, j, k, 1)",
-                sform ? "sform" : qform ? "qform" : "no affine, pixdim only",
-                sform ? nifti_xform_string(nim->sform_code) : qform ? nifti_xform_string(nim->qform_code) : "voxel sizes",
-                a[0][0], a[0][1], a[0][2], a[0][3], a[1][0], a[1][1], a[1][2], a[1][3], a[2][0], a[2][1], a[2][2], a[2][3]);
-  out.notes.push_back(text);
+  out.notes.push_back(std::string(sform ? "sform" : qform ? "qform" : "no affine, pixdim only") + " (" +
+                      (sform ? nifti_xform_string(nim->sform_code) : qform ? nifti_xform_string(nim->qform_code) : "voxel sizes") +
+                      "): " + describeAffine(a));
   return out;
 }
 
@@ -930,6 +927,13 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
 }
 
 }  // namespace
+
+std::string describeAffine(const double a[3][4]) {
+  char text[300];
+  std::snprintf(text, sizeof text, "voxel (i, j, k) at [%g %g %g %g; %g %g %g %g; %g %g %g %g] (i, j, k, 1)", a[0][0],
+                a[0][1], a[0][2], a[0][3], a[1][0], a[1][1], a[1][2], a[1][3], a[2][0], a[2][1], a[2][2], a[2][3]);
+  return text;
+}
 
 void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
                    const std::string& where) {

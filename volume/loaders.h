@@ -60,6 +60,8 @@ VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool d
 // `toWorld` (rotation, mirroring, shear). Throws InputError (file, where) for a degenerate one.
 void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
                    const std::string& where);
+// "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
+std::string describeAffine(const double a[3][4]);
 
 // Parses `name_256x256x128_uint8.raw[.gz]`; false if the name does not follow the convention.
 bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type);

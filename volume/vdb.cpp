@@ -35,6 +35,7 @@ void place(const openvdb::GridBase& grid, const openvdb::Coord& first, VolumeFil
   }
   for (int r = 0; r < 3; ++r) a[r][3] = o[r];
   placeByAffine(a, out.grid, out.toWorld, path, "grid '" + grid.getName() + "' transform");
+  out.notes.push_back("transform: " + describeAffine(a));
 }
 
 template <typename GridT>
