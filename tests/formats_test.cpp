@@ -452,7 +452,7 @@ TEST(VdbFiles, GridsAreChosenByNameAndTheirErrorsNamed) {
   // Sparse, two far voxels cost two bricks and a table; dense, the copy is refused.
   const VolumeFile farSparse = readVolumeFile(dir + "/far.vdb");
   // Each voxel is a corner of 8 bricks' blocks (a block holds its far faces too).
-  EXPECT_EQ(farSparse.grid.sparse()->blockCount(), 16u);
+  EXPECT_EQ(farSparse.grid.sparse()->blockCount, 16u);
   EXPECT_EQ(farSparse.grid.value(8, 8, 8), 1.f);  // sample 0 is index (-1, -1, -1) moved down to -8
   EXPECT_EQ(farSparse.grid.value(9, 8, 8), 0.f);
   try {

@@ -27,7 +27,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
         m_lo[b] = m_hi[b] = sparse->uniform[size_t(-1 - slot)];
         return;
       }
-      const float* v = sparse->blocks.data() + size_t(slot) * kBlockSize;
+      const float* v = sparse->blocks + size_t(slot) * kBlockSize;
       const auto [lo, hi] = std::minmax_element(v, v + kBlockSize);
       m_lo[b] = *lo;
       m_hi[b] = *hi;

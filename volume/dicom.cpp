@@ -8,13 +8,8 @@
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTrace.h>
-#include <sys/mman.h>
-#include <sys/wait.h>
-#include <fcntl.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -297,94 +292,6 @@ VolumeFile readHere(const std::string& path, const std::string& series) {
   return loadMultiFrame(path);
 }
 
-// Debian builds GDCM with its assertions on, and a malformed file can trip one (seen on
-// pydicom's own test files: BitsAllocated 1, a truncated RT dose): abort() would take isotrace
-// down. So GDCM runs in a child process: the child reads the volume and hands back its samples
-// through a memfd and the rest (geometry, notes, or the InputError) through a pipe; if it dies,
-// the parent reports the file as malformed. The parent maps the samples: no copy.
-VolumeFile readIsolated(const std::string& path, const std::string& series) {
-  const int samplesFd = memfd_create("isotrace-dicom", MFD_CLOEXEC);
-  int pipeFds[2];
-  if (samplesFd < 0 || pipe2(pipeFds, O_CLOEXEC) != 0) throw InputError(path, "", "cannot set up the DICOM reader");
-  const pid_t pid = fork();
-  if (pid < 0) throw InputError(path, "", "cannot start the DICOM reader");
-  if (pid == 0) {  // the child: read, report, exit without running the parent's destructors
-    close(pipeFds[0]);
-    const int devNull = open("/dev/null", O_WRONLY);
-    if (devNull >= 0) dup2(devNull, 2);  // GDCM's assertion messages; the parent reports
-    std::string report;
-    auto putDoubles = [&](const double* v, int n) { report.append(reinterpret_cast<const char*>(v), size_t(n) * 8); };
-    try {
-      const VolumeFile v = readHere(path, series);
-      const size_t bytes = v.grid.bytes();
-      const char* data = static_cast<const char*>(v.grid.data());
-      bool written = ftruncate(samplesFd, off_t(bytes)) == 0;
-      for (size_t done = 0; written && done < bytes;) {
-        const ssize_t n = pwrite(samplesFd, data + done, bytes - done, off_t(done));
-        written = n > 0;
-        done += written ? size_t(n) : 0;
-      }
-      if (!written) _exit(3);
-      report = "ok";
-      const Vec3i d = v.grid.dims();
-      const double dims[3] = {double(d.x), double(d.y), double(d.z)};
-      putDoubles(dims, 3);
-      const Vec3d o = v.grid.origin(), sp = v.grid.spacing();
-      const double place[6] = {o.x, o.y, o.z, sp.x, sp.y, sp.z};
-      putDoubles(place, 6);
-      for (int r = 0; r < 3; ++r) putDoubles(v.toWorld.m[r], 4);
-      for (const std::string& note : v.notes) report += note + '\n';
-    } catch (const InputError& e) {
-      report = std::string("er") + e.what();
-    } catch (const std::exception& e) {
-      report = std::string("er") + path + ": cannot read: " + e.what();
-    }
-    for (size_t done = 0; done < report.size();) {
-      const ssize_t n = write(pipeFds[1], report.data() + done, report.size() - done);
-      if (n <= 0) _exit(3);
-      done += size_t(n);
-    }
-    _exit(0);
-  }
-  close(pipeFds[1]);
-  std::string report;
-  char buffer[4096];
-  for (ssize_t n; (n = read(pipeFds[0], buffer, sizeof buffer)) != 0;) {
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) break;
-    report.append(buffer, size_t(n));
-  }
-  close(pipeFds[0]);
-  int status = 0;
-  while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
-  }
-  struct Closer {
-    int fd;
-    ~Closer() { close(fd); }
-  } closer{samplesFd};
-  constexpr size_t kFixed = 2 + 9 * 8 + 12 * 8;
-  const bool exited = WIFEXITED(status) && WEXITSTATUS(status) == 0;
-  if (exited && report.compare(0, 2, "er") == 0) throw InputError(report.substr(2));
-  if (!exited || report.compare(0, 2, "ok") != 0 || report.size() < kFixed)
-    throw InputError(path, "", "GDCM stopped reading it (an assertion or a crash inside the library): a malformed DICOM file");
-  double fixed[21];
-  std::memcpy(fixed, report.data() + 2, sizeof fixed);
-  const Vec3i dims{int(fixed[0]), int(fixed[1]), int(fixed[2])};
-  const size_t bytes = size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * sizeof(float);
-  void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, samplesFd, 0);
-  if (map == MAP_FAILED) throw InputError(path, "", "cannot map the DICOM samples");
-  std::shared_ptr<const void> samples(map, [bytes](const void* p) { munmap(const_cast<void*>(p), bytes); });
-  VolumeFile v;
-  v.format = "DICOM";
-  v.grid = Grid(dims, ScalarType::Float32, samples, {fixed[3], fixed[4], fixed[5]}, {fixed[6], fixed[7], fixed[8]});
-  double rows[12];
-  std::memcpy(rows, fixed + 9, sizeof rows);
-  v.toWorld = Transform::fromRows(rows);
-  std::istringstream notes(report.substr(kFixed));
-  for (std::string line; std::getline(notes, line);) v.notes.push_back(line);
-  return v;
-}
-
 }  // namespace
 
 VolumeFile loadDicom(const std::string& path, const std::string& series) {
@@ -392,7 +299,8 @@ VolumeFile loadDicom(const std::string& path, const std::string& series) {
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (!fs::is_directory(path, ec) && !series.empty())
     throw InputError(path, "", "\"series\" chooses among the series of a folder; this is one file");
-  return readIsolated(path, series);
+  // Debian's GDCM aborts on an assertion for some malformed files: it reads in a child process.
+  return readInChildProcess(path, "GDCM", [&] { return readHere(path, series); });
 }
 
 }  // namespace iso

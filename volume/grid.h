@@ -28,12 +28,16 @@ bool parseScalarType(const std::string& name, ScalarType& type);
 // finds the same crossings as on the dense grid (tests check it). The grid's dims - 1 are a
 // multiple of 8 on every axis.
 struct SparseSamples {
-  static constexpr int kBlock = 9;  // samples per block edge
-  Vec3i bricks;                     // per axis: (dims - 1) / 8
-  std::vector<int32_t> slot;        // per brick (x fastest): block index >= 0, or -1 - index into `uniform`
-  std::vector<float> blocks;        // 729 samples per stored block
-  std::vector<float> uniform;       // the values of the constant bricks
-  size_t blockCount() const { return blocks.size() / size_t(kBlock * kBlock * kBlock); }
+  static constexpr int kBlock = 9;        // samples per block edge
+  static constexpr size_t kBlockSize = 729;
+  Vec3i bricks;                           // per axis: (dims - 1) / 8
+  const int32_t* slot = nullptr;          // per brick (x fastest): block index >= 0, or -1 - index into `uniform`
+  const float* blocks = nullptr;          // kBlockSize samples per stored block
+  const float* uniform = nullptr;         // the values of the constant bricks
+  size_t blockCount = 0, uniformCount = 0;
+  std::shared_ptr<const void> owner;      // keeps the arrays alive (vectors, or a mapping)
+  size_t brickCount() const { return size_t(bricks.x) * bricks.y * bricks.z; }
+  size_t bytes() const { return brickCount() * 4 + (blockCount * kBlockSize + uniformCount) * 4; }
 };
 
 class Grid {
@@ -76,8 +80,7 @@ class Grid {
   size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
   // Memory of the samples as held (a sparse grid: its blocks and brick table).
   size_t bytes() const {
-    return m_sparse ? m_sparse->blocks.size() * 4 + m_sparse->slot.size() * 4 + m_sparse->uniform.size() * 4
-                    : sampleCount() * scalarTypeSize(m_type);
+    return m_sparse ? m_sparse->bytes() : sampleCount() * scalarTypeSize(m_type);
   }
 
   size_t index(int x, int y, int z) const {

@@ -58,7 +58,7 @@ IsoMesh extractIsoMesh(const Grid& grid, double iso) {
                              sparse->uniform[size_t(-1 - slot)], true);
             continue;
           }
-          const float* block = sparse->blocks.data() + size_t(slot) * k * k * k;
+          const float* block = sparse->blocks + size_t(slot) * k * k * k;
           for (int z = 0; z <= hi.z; ++z)
             for (int y = 0; y <= hi.y; ++y)
               for (int x = 0; x <= hi.x; ++x)

@@ -4,6 +4,7 @@
 // MetaImage (.mhd/.mha), legacy VTK STRUCTURED_POINTS, NIfTI-1/2 (.nii, .nii.gz, .hdr/.img) and
 // DICOM (a folder of slices or a multi-frame file).
 // Every failure is an InputError naming the file and, where there is one, the header line.
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -60,6 +61,12 @@ VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool d
 // `toWorld` (rotation, mirroring, shear). Throws InputError (file, where) for a degenerate one.
 void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
                    const std::string& where);
+// Runs `read` in a child process and returns its volume (volume/isolated.cpp): for libraries
+// that abort, crash or allocate without bound on malformed files (GDCM, OpenVDB). The child's
+// grid must be float32 (dense) or sparse; its InputError comes back as is, its death as an
+// InputError naming `library` and the file.
+VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read);
+
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
 std::string describeAffine(const double a[3][4]);
 

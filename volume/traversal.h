@@ -134,7 +134,7 @@ struct SparseCellAccess : BrickClassLookup {
       for (int i = 0; i < 8; ++i) g[i] = v;
       return;
     }
-    const float* p = sparse->blocks.data() + size_t(slot) * k * k * k + (size_t(c.z & 7) * k + size_t(c.y & 7)) * k +
+    const float* p = sparse->blocks + size_t(slot) * k * k * k + (size_t(c.z & 7) * k + size_t(c.y & 7)) * k +
                      size_t(c.x & 7);
     g[0] = Real(p[0]) - iso;
     g[1] = Real(p[1]) - iso;

@@ -1,0 +1,169 @@
+// Reading a volume in a child process (loaders.h, readInChildProcess). Debian builds GDCM with
+// its assertions on, and malformed files trip them (pydicom's own test files do); OpenVDB trusts
+// the sizes in its streams and allocates whatever they say, or reads past its buffers. An
+// abort(), a crash or an out-of-memory there would take isotrace down with it, so such a
+// library reads in a child: the child hands back the samples through a memfd (the parent maps
+// them: no copy) and the rest (geometry, notes, or the InputError) through a pipe; if it dies,
+// the parent reports the file as malformed, in one line.
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <csignal>
+#include <cstring>
+#include <sstream>
+
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+
+namespace iso {
+namespace {
+
+// The fixed part of the report: kind, dims, origin, spacing, the 3x4 placement, array sizes.
+struct Header {
+  char tag[2];  // "ok"
+  int32_t sparse;
+  int32_t dims[3];
+  int32_t bricks[3];
+  double origin[3], spacing[3], toWorld[12];
+  uint64_t blockCount, uniformCount;
+};
+
+bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
+  const char* p = static_cast<const char*>(data);
+  for (size_t done = 0; done < size;) {
+    const ssize_t n = at ? pwrite(fd, p + done, size - done, *at + off_t(done)) : write(fd, p + done, size - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    done += size_t(n);
+  }
+  if (at) *at += off_t(size);
+  return true;
+}
+
+[[noreturn]] void childMain(int samplesFd, int reportFd, const std::string& path, const std::function<VolumeFile()>& read) {
+  // The parent's handlers (SIGINT's, a fuzzer's) are not the child's business; a crash here
+  // ends the child, which the parent reports. The library's own messages are muted.
+  for (int sig : {SIGABRT, SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGINT, SIGTERM}) std::signal(sig, SIG_DFL);
+  const int devNull = open("/dev/null", O_WRONLY);
+  if (devNull >= 0) dup2(devNull, 2);
+  // No more address space than the machine has memory: a file that asks for more fails here
+  // (bad_alloc) instead of swapping the machine to a halt.
+  const long pages = sysconf(_SC_PHYS_PAGES), pageSize = sysconf(_SC_PAGE_SIZE);
+  if (pages > 0 && pageSize > 0) {
+    const rlim_t limit = rlim_t(pages) * rlim_t(pageSize);
+    const rlimit r{limit, limit};
+    setrlimit(RLIMIT_AS, &r);
+  }
+  std::string report;
+  try {
+    const VolumeFile v = read();
+    Header h{};
+    h.tag[0] = 'o', h.tag[1] = 'k';
+    const Grid& g = v.grid;
+    for (int a = 0; a < 3; ++a) {
+      h.dims[a] = g.dims()[a];
+      h.origin[a] = g.origin()[a];
+      h.spacing[a] = g.spacing()[a];
+    }
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) h.toWorld[r * 4 + c] = v.toWorld.m[r][c];
+    off_t at = 0;
+    bool ok = true;
+    if (const SparseSamples* s = g.sparse()) {
+      h.sparse = 1;
+      for (int a = 0; a < 3; ++a) h.bricks[a] = s->bricks[a];
+      h.blockCount = s->blockCount;
+      h.uniformCount = s->uniformCount;
+      ok = writeAll(samplesFd, s->slot, s->brickCount() * 4, &at) &&
+           writeAll(samplesFd, s->blocks, s->blockCount * SparseSamples::kBlockSize * 4, &at) &&
+           writeAll(samplesFd, s->uniform, s->uniformCount * 4, &at);
+    } else {
+      if (g.type() != ScalarType::Float32) throw InputError(path, "", "internal: a child reader must make float32 samples");
+      ok = writeAll(samplesFd, g.data(), g.bytes(), &at);
+    }
+    if (!ok) _exit(3);
+    report.assign(reinterpret_cast<const char*>(&h), sizeof h);
+    report += v.format + '\n';
+    for (const std::string& note : v.notes) report += note + '\n';
+  } catch (const InputError& e) {
+    report = std::string("er") + e.what();
+  } catch (const std::bad_alloc&) {
+    report = "er" + path + ": it asks for more memory than the machine has (a malformed file?)";
+  } catch (const std::exception& e) {
+    report = "er" + path + ": cannot read: " + e.what();
+  }
+  _exit(writeAll(reportFd, report.data(), report.size()) ? 0 : 3);
+}
+
+}  // namespace
+
+VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read) {
+  const std::string malformed = std::string(library) +
+                                " stopped reading it (an assertion, a crash or no memory inside the library): a malformed file";
+  const int samplesFd = memfd_create("isotrace-volume", MFD_CLOEXEC);
+  int pipeFds[2];
+  if (samplesFd < 0 || pipe2(pipeFds, O_CLOEXEC) != 0) throw InputError(path, "", "cannot start a reader process");
+  struct Closer {
+    int fd;
+    ~Closer() { close(fd); }
+  } closer{samplesFd};
+  const pid_t pid = fork();
+  if (pid < 0) throw InputError(path, "", "cannot start a reader process");
+  if (pid == 0) {
+    close(pipeFds[0]);
+    childMain(samplesFd, pipeFds[1], path, read);
+  }
+  close(pipeFds[1]);
+  std::string report;
+  char buffer[4096];
+  for (ssize_t n; (n = ::read(pipeFds[0], buffer, sizeof buffer)) != 0;) {
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) break;
+    report.append(buffer, size_t(n));
+  }
+  close(pipeFds[0]);
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  const bool exited = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+  if (exited && report.compare(0, 2, "er") == 0) throw InputError(report.substr(2));
+  if (!exited || report.size() < sizeof(Header) || report.compare(0, 2, "ok") != 0) throw InputError(path, "", malformed);
+  Header h;
+  std::memcpy(&h, report.data(), sizeof h);
+  const Vec3i dims{h.dims[0], h.dims[1], h.dims[2]};
+  const size_t brickCount = size_t(h.bricks[0]) * size_t(h.bricks[1]) * size_t(h.bricks[2]);
+  const size_t bytes = h.sparse ? (brickCount + h.blockCount * SparseSamples::kBlockSize + h.uniformCount) * 4
+                                : size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * 4;
+  struct stat info;
+  if (fstat(samplesFd, &info) != 0 || size_t(info.st_size) != bytes || bytes == 0) throw InputError(path, "", malformed);
+  void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, samplesFd, 0);
+  if (map == MAP_FAILED) throw InputError(path, "", "cannot map the samples its reader made");
+  std::shared_ptr<const void> mapping(map, [bytes](const void* p) { munmap(const_cast<void*>(p), bytes); });
+  VolumeFile v;
+  const Vec3d origin{h.origin[0], h.origin[1], h.origin[2]}, spacing{h.spacing[0], h.spacing[1], h.spacing[2]};
+  if (h.sparse) {
+    auto s = std::make_shared<SparseSamples>();
+    s->bricks = {h.bricks[0], h.bricks[1], h.bricks[2]};
+    s->slot = static_cast<const int32_t*>(map);
+    s->blocks = reinterpret_cast<const float*>(s->slot + brickCount);
+    s->uniform = s->blocks + h.blockCount * SparseSamples::kBlockSize;
+    s->blockCount = h.blockCount;
+    s->uniformCount = h.uniformCount;
+    s->owner = mapping;
+    v.grid = Grid(dims, std::move(s), origin, spacing);
+  } else {
+    v.grid = Grid(dims, ScalarType::Float32, mapping, origin, spacing);
+  }
+  v.toWorld = Transform::fromRows(h.toWorld);
+  std::istringstream lines(report.substr(sizeof h));
+  std::getline(lines, v.format);
+  for (std::string line; std::getline(lines, line);) v.notes.push_back(line);
+  return v;
+}
+
+}  // namespace iso
