@@ -48,10 +48,6 @@ nibabel=/usr/lib/python3/dist-packages/nibabel/tests/data  # python3-nibabel's t
 seed volume 8 <(gunzip -c $nibabel/standard.nii.gz)
 seed volume 8 $nibabel/reoriented_anat_moved.nii
 seed volume 9 $nibabel/example_nifti2.nii.gz
-pydicom=/usr/lib/python3/dist-packages/pydicom/data/test_files  # python3-pydicom's test files
-seed volume 10 $pydicom/rtdose.dcm
-seed volume 10 $pydicom/MR_small.dcm
-seed volume 11 $data/volumes/smoke.vdb
 seed gltf 0 $data/meshes/BoxTextured/BoxTextured.gltf
 seed gltf 1 $data/meshes/Box.glb
 seed gltf 2 $data/meshes/cornell/cornell_box.obj
