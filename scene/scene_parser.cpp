@@ -478,6 +478,8 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
         if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
         v.layout.bigEndian = endian == "big";
       } else {
+        for (const char* key : {"dims", "type", "endian", "series", "grid"})
+          if (vr.has(key)) vr.fail(vr.at(key), std::string("\"") + key + "\" applies to volume files, not to a procedural field");
         ObjectReader pr(*vr.get("procedural"), vr.at("procedural"), path, {"field", "resolution"});
         const std::string name = pr.string("field", "");
         Field field;

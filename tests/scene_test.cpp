@@ -193,6 +193,10 @@ TEST(SceneFormat, ErrorsNameTheirJsonPath) {
               "/meshes/0/transform/matrix", "not invertible");
   expectError(R"({"meshes": [{"shape": "quad", "transform": {"scale": 0}}]})", "/meshes/0/transform/scale", "flattens");
   expectError(R"({"camera": {"gltf_camera": "a", "fov": 30}})", "/camera/fov", "not allowed together");
+  expectError(R"({"volumes": [{"procedural": {"field": "sphere"}, "grid": "density", "isosurfaces": [{"value": 0.5}]}]})",
+              "/volumes/0/grid", "applies to volume files, not to a procedural field");
+  expectError(R"({"volumes": [{"file": "a.vdb", "series": "", "isosurfaces": [{"value": 0.5}]}]})", "/volumes/0/series",
+              "empty series UID");
   expectError("{\n  \"film\": {\"width\": 3,}\n}", "line 2, column 23", "JSON syntax error");
 }
 
