@@ -213,6 +213,8 @@ TEST_F(SyntheticFiles, RawStraightIntoTheGrid) {
   // A stream that inflates to more than the layout holds stops at the first extra byte.
   test::writeBytes(dir + "/bomb_4x3x2_int16.raw.gz", gzip(std::string(1 << 20, '\0')));
   expectInputError(dir + "/bomb_4x3x2_int16.raw.gz", "decompressed data is larger than 4x3x2 int16 (48 bytes)");
+  test::writeBytes(dir + "/v_65536x65536x65536_uint8.raw.gz", gzip(le));
+  expectInputError(dir + "/v_65536x65536x65536_uint8.raw.gz", "bytes of gzip data cannot hold more than");
   test::writeBytes(dir + "/small_4x3x2_int16.raw.gz", gzip(le.substr(0, 20)));
   expectInputError(dir + "/small_4x3x2_int16.raw.gz", "data has 20 bytes but 4x3x2 int16 needs 48");
   test::writeBytes(dir + "/long_4x3x2_int16.raw", le + "xx");

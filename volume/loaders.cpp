@@ -119,6 +119,17 @@ Bytes inflateBytes(const Bytes& in, const std::string& file, size_t limit) {
   return out;
 }
 
+// Deflate expands at most about 1032:1, so `compressed` bytes of gzip cannot hold more than
+// this: a header asking for more is refused before the grid is allocated (a 200-byte file
+// claiming 19 TB of samples).
+void checkInflatable(size_t compressed, size_t expected, const std::string& file) {
+  const double most = double(compressed) * 1032.0 + 65536.0;
+  if (double(expected) > most)
+    throw InputError(file, "", "the header asks for " + std::to_string(expected) + " bytes of samples; " +
+                                   std::to_string(compressed) + " bytes of gzip data cannot hold more than " +
+                                   std::to_string(size_t(most)));
+}
+
 void checkDims(const Vec3i& d, const std::string& file, const std::string& where) {
   if (d.x <= 0 || d.y <= 0 || d.z <= 0)
     throw InputError(file, where, "dimensions must be positive, got " + std::to_string(d.x) +
@@ -838,9 +849,10 @@ VolumeFile loadNifti(const std::string& path) {
   const bool gzip = nifti_is_gzfile(image.c_str());
   const bool swap = nim->byteorder != nifti_short_order();
 
+  size_t imageSize;
+  openFile(image, imageSize);
+  if (gzip) checkInflatable(imageSize, fileBytes, path);
   if (!gzip) {  // the size is known before anything is allocated
-    size_t imageSize;
-    openFile(image, imageSize);
     const size_t offset = size_t(nim->iname_offset);
     if (imageSize < offset || imageSize - offset < fileBytes)
       throw InputError(image, "", "holds " + std::to_string(imageSize > offset ? imageSize - offset : 0) +
@@ -914,6 +926,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   in.read(magic, 2);
   const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
   if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  if (gzip) checkInflatable(fileSize, expected, path);
   std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
   uint8_t* dst = samples.get();
   if (gzip) {
