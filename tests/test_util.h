@@ -1,5 +1,7 @@
 #pragma once
-// Helpers shared by the tests: data paths, a seeded RNG, running the isotrace binary.
+// Helpers shared by the tests: data paths, a seeded RNG, running the isotrace binary, bad input.
+#include <gtest/gtest.h>
+
 #include <cstdio>
 #include <random>
 #include <string>
@@ -21,5 +23,20 @@ CommandResult runIsotrace(const std::string& args);
 std::string scratchDir();
 void writeText(const std::string& path, const std::string& text);
 void writeBytes(const std::string& path, const std::string& bytes);
+
+// Bad input: `load()` must throw an InputError (or another exception type E) whose message
+// names `name` (a file, a place) and holds `fragment`, in one line.
+template <typename E, typename F>
+void expectRefusal(F&& load, const std::string& name, const std::string& fragment) {
+  try {
+    load();
+    ADD_FAILURE() << "no error for " << name;
+  } catch (const E& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(name), std::string::npos) << msg;
+    EXPECT_NE(msg.find(fragment), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << "one line: " << msg;
+  }
+}
 
 }  // namespace iso::test
