@@ -16,7 +16,9 @@
 #include <tbb/task_arena.h>
 #include <map>
 #include <optional>
+#include <cmath>
 #include <regex>
+#include <sstream>
 
 #include "bench/accuracy.h"
 #include "bench/watertight.h"
@@ -29,8 +31,9 @@ namespace iso {
 namespace {
 
 struct RenderFlags {
-  std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap;
-  int spp = 0, threads = -1, maxDepth = 0;
+  std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap, isoSweep;
+  int spp = 0, threads = -1, maxDepth = 0, frames = 1;
+  std::optional<double> orbit;
   long long seed = -1;
   bool quiet = false, alpha = false, allowLarge = false;
   std::optional<double> exposure, clamp, adaptive;
@@ -179,8 +182,8 @@ std::string jsonString(const std::string& s) {
   return out + "\"";
 }
 
-void writeStats(const std::string& path, const SceneDesc& scene, const World& world, const RenderResult& r,
-                int threads, double totalSeconds) {
+void writeStats(const std::string& path, const SceneDesc& scene, double loadSeconds, double buildSeconds,
+                const RenderResult& r, int frames, int threads, double totalSeconds) {
   const RenderSettings& s = scene.settings;
   const RayCounters& c = r.counters;
   const uint64_t rays = c.camera + c.shadow + c.indirect;
@@ -191,7 +194,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, const World& wo
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
-               "  \"max_depth\": %d,\n"
+               "  \"max_depth\": %d,\n  \"frames\": %d,\n"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
@@ -199,7 +202,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, const World& wo
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
-               world.loadSeconds(), world.buildSeconds(), r.seconds, totalSeconds, (unsigned long long)c.camera,
+               frames, loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
@@ -210,10 +213,84 @@ void writeStats(const std::string& path, const SceneDesc& scene, const World& wo
   }
 }
 
+// A frame sequence (--frames, --iso-sweep, --orbit): frame f of N has iso-surface `surface`
+// (counted over all volumes in scene order) at from + (to - from) f / (N - 1), and the camera
+// turned about its look-at point, around its up vector, by orbit f / N degrees (a full 360
+// turn does not repeat the first frame).
+struct FrameSequence {
+  int frames = 1;
+  int surface = -1;  // swept surface, or -1
+  double from = 0, to = 0;
+  double orbit = 0;
+  IsoSurfaceDesc* iso(SceneDesc& scene) const {
+    int k = 0;
+    for (VolumeDesc& v : scene.volumes)
+      for (IsoSurfaceDesc& d : v.isosurfaces)
+        if (k++ == surface) return &d;
+    return nullptr;
+  }
+  double isoValue(int f) const { return frames == 1 ? from : from + (to - from) * double(f) / double(frames - 1); }
+  // OUT.png -> OUT.0007.png (at least 4 digits, more for longer sequences).
+  std::string name(const std::string& output, int f) const {
+    if (frames == 1) return output;
+    const int digits = std::max<int>(4, int(std::to_string(frames - 1).size()));
+    std::string number = std::to_string(f);
+    return withSuffix(output, std::string(size_t(digits) - number.size(), '0') + number);
+  }
+};
+
+FrameSequence frameSequence(const RenderFlags& f, SceneDesc& scene) {
+  FrameSequence seq;
+  seq.frames = f.frames;
+  if (!f.isoSweep.empty()) {
+    std::istringstream in(f.isoSweep);
+    std::string index, from, to;
+    if (!std::getline(in, index, ':') || !std::getline(in, from, ':') || !std::getline(in, to) ||
+        index.find_first_not_of("0123456789") != std::string::npos || index.empty() || index.size() > 6)
+      throw InputError("--iso-sweep", "", "expected SURFACE:FROM:TO, e.g. 0:40:120 (SURFACE counts all iso-surfaces from 0)");
+    seq.surface = std::stoi(index);
+    try {
+      size_t used = 0;
+      seq.from = std::stod(from, &used);
+      if (used != from.size()) throw std::invalid_argument(from);
+      seq.to = std::stod(to, &used);
+      if (used != to.size()) throw std::invalid_argument(to);
+    } catch (const std::exception&) {
+      throw InputError("--iso-sweep", "", "'" + from + "' and '" + to + "' must be numbers");
+    }
+    if (!std::isfinite(seq.from) || !std::isfinite(seq.to))
+      throw InputError("--iso-sweep", "", "the iso values must be finite");
+    if (!seq.iso(scene)) {
+      size_t count = 0;
+      for (const VolumeDesc& v : scene.volumes) count += v.isosurfaces.size();
+      throw InputError("--iso-sweep", "", "no iso-surface " + index + " (the scene has " + std::to_string(count) +
+                                              ", counted from 0 over all volumes)");
+    }
+  }
+  if (f.orbit) {
+    if (!std::isfinite(*f.orbit) || std::fabs(*f.orbit) > 36000) throw InputError("--orbit", "", "expected degrees in [-36000, 36000]");
+    seq.orbit = *f.orbit;
+  }
+  if (seq.frames > 1 && seq.surface < 0 && !f.orbit)
+    throw InputError("--frames", "", "a sequence needs --iso-sweep and/or --orbit (else every frame is the same)");
+  if (seq.frames == 1 && (seq.surface >= 0 || f.orbit))
+    throw InputError("--frames", "", "--iso-sweep and --orbit make a sequence: give --frames N (N >= 2)");
+  return seq;
+}
+
+// The camera turned about its look-at point, around its up vector, by `degrees`.
+CameraDesc orbitCamera(CameraDesc c, double degrees) {
+  if (degrees == 0) return c;
+  const Transform r = Transform::rotate(degrees, c.up);
+  c.position = c.lookAt + r.vector(c.position - c.lookAt);
+  return c;
+}
+
 int render(const RenderFlags& flags) {
   const auto start = std::chrono::steady_clock::now();
   SceneDesc scene = parseSceneFile(flags.scene);
   applyFlags(flags, scene);
+  const FrameSequence seq = frameSequence(flags, scene);
   const std::string output = flags.output.empty()
                                  ? std::filesystem::path(flags.scene).stem().string() + ".png"
                                  : flags.output;
@@ -229,14 +306,17 @@ int render(const RenderFlags& flags) {
   options.alpha = flags.alpha;
   options.noiseThreshold = s.noiseThreshold;
   options.progress = !flags.quiet && isatty(2);
-  if (s.integrator == "compare") {
-    for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(output, part));
-  } else {
-    checkWritable(output);
+  for (int f : {0, seq.frames - 1}) {  // the first and last names: the same folder, other digits
+    const std::string name = seq.name(output, f);
+    if (s.integrator == "compare") {
+      for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(name, part));
+    } else {
+      checkWritable(name);
+    }
   }
   if (!flags.stats.empty()) checkWritable(flags.stats);
   // From here on a stop signal is a request: loading ends first (then nothing is written),
-  // a render ends at the next tile and its image is written whole.
+  // a render ends at the next tile and its image is written whole (a sequence then stops).
   clearStopRequest();
   auto previousInt = std::signal(SIGINT, onStopSignal);
   auto previousTerm = std::signal(SIGTERM, onStopSignal);
@@ -247,86 +327,120 @@ int render(const RenderFlags& flags) {
       std::signal(SIGTERM, t == SIG_ERR ? SIG_DFL : t);
     }
   } restore{previousInt, previousTerm};
-  World world(scene, s.intersector);
-  if (stopRequested()) {
-    std::fprintf(stderr, "isotrace: interrupted while loading: no image written\n");
-    return 130;
-  }
-  for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
-  Camera camera(world.camera(), s.width, s.height);
-  auto integrator = makeIntegrator(s.integrator, world, s);
-  Film film(s.width, s.height);
-  std::unique_ptr<Film> direct;
-  if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
 
-  const RenderResult result = renderFrame(camera, *integrator, options, film, direct.get());
+  RenderResult total;
+  double loadSeconds = 0, buildSeconds = 0;
+  int framesDone = 0;
+  std::unique_ptr<World> world;
+  for (int frame = 0; frame < seq.frames; ++frame) {
+    // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
+    if (!world || seq.surface >= 0) {
+      if (seq.surface >= 0) seq.iso(scene)->value = seq.isoValue(frame);
+      world = std::make_unique<World>(scene, s.intersector);
+      loadSeconds += world->loadSeconds();
+      buildSeconds += world->buildSeconds();
+      if (stopRequested()) {
+        std::fprintf(stderr, "isotrace: interrupted while loading: no image written for frame %d\n", frame);
+        return 130;
+      }
+      if (frame == 0)
+        for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+    }
+    const double degrees = seq.orbit * double(frame) / double(seq.frames);
+    Camera camera(orbitCamera(world->camera(), degrees), s.width, s.height);
+    auto integrator = makeIntegrator(s.integrator, *world, s);
+    Film film(s.width, s.height);
+    std::unique_ptr<Film> direct;
+    if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
 
-  std::map<std::string, std::string> metadata = {
-      {"Software", "isotrace"},
-      {"isotrace:spp", std::to_string(result.minSamples)},
-      {"isotrace:spp_requested", std::to_string(s.spp)},
-      {"isotrace:integrator", s.integrator},
-      {"isotrace:max_depth", std::to_string(s.maxDepth)},
-      {"isotrace:intersector", intersectorName(s.intersector)},
-      {"isotrace:seed", std::to_string(s.seed)}};
-  if (s.noiseThreshold > 0) {
-    metadata["isotrace:noise_threshold"] = jsonNumber(s.noiseThreshold);
-    metadata["isotrace:spp_mean"] = jsonNumber(result.meanSamples);
-    metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
+    const RenderResult result = renderFrame(camera, *integrator, options, film, direct.get());
+
+    std::map<std::string, std::string> metadata = {
+        {"Software", "isotrace"},
+        {"isotrace:spp", std::to_string(result.minSamples)},
+        {"isotrace:spp_requested", std::to_string(s.spp)},
+        {"isotrace:integrator", s.integrator},
+        {"isotrace:max_depth", std::to_string(s.maxDepth)},
+        {"isotrace:intersector", intersectorName(s.intersector)},
+        {"isotrace:seed", std::to_string(s.seed)}};
+    if (s.noiseThreshold > 0) {
+      metadata["isotrace:noise_threshold"] = jsonNumber(s.noiseThreshold);
+      metadata["isotrace:spp_mean"] = jsonNumber(result.meanSamples);
+      metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
+    }
+    if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
+    if (result.interrupted) metadata["isotrace:interrupted"] = "1";
+    if (seq.frames > 1) {
+      metadata["isotrace:frame"] = std::to_string(frame) + "/" + std::to_string(seq.frames);
+      if (seq.surface >= 0) metadata["isotrace:iso_value"] = jsonNumber(seq.isoValue(frame));
+      if (seq.orbit != 0) metadata["isotrace:orbit_degrees"] = jsonNumber(degrees);
+    }
+    if (imageFormatFor(output) != ImageFormat::Exr) {
+      metadata["isotrace:exposure"] = jsonNumber(display.exposure);
+      metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
+    }
+    const std::string frameOutput = seq.name(output, frame);
+    std::vector<std::string> written;
+    if (direct) {
+      // global = everything, direct = paths of depth 1, indirect = global - direct.
+      Film indirect(s.width, s.height);
+      for (int y = 0; y < s.height; ++y)
+        for (int x = 0; x < s.width; ++x) indirect.at(x, y) = film.at(x, y) - direct->at(x, y);
+      const std::string global = withSuffix(frameOutput, "global");
+      direct->alpha() = indirect.alpha() = film.alpha();
+      writeImage(withSuffix(frameOutput, "direct"), *direct, false, metadata, display);
+      writeImage(global, film, false, metadata, display);
+      writeImage(withSuffix(frameOutput, "indirect"), indirect, false, metadata, display);
+      written = {withSuffix(frameOutput, "direct"), global, withSuffix(frameOutput, "indirect")};
+      const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
+      std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
+                   "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
+    } else {
+      writeImage(frameOutput, film, integrator->signedOutput(), metadata, display);
+      written = {frameOutput};
+    }
+    for (const std::string& path : written) std::printf("%s\n", path.c_str());
+    std::fflush(stdout);
+    total.counters.add(result.counters);
+    total.seconds += result.seconds;
+    total.minSamples = frame == 0 ? result.minSamples : std::min(total.minSamples, result.minSamples);
+    total.maxSamples = std::max(total.maxSamples, result.maxSamples);
+    total.meanSamples += result.meanSamples / seq.frames;
+    total.interrupted = result.interrupted;
+    ++framesDone;
+    if (result.interrupted) break;
   }
-  if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
-  if (result.interrupted) metadata["isotrace:interrupted"] = "1";
-  if (imageFormatFor(output) != ImageFormat::Exr) {
-    metadata["isotrace:exposure"] = jsonNumber(display.exposure);
-    metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
-  }
-  std::vector<std::string> written;
-  if (direct) {
-    // global = everything, direct = paths of depth 1, indirect = global - direct.
-    Film indirect(s.width, s.height);
-    for (int y = 0; y < s.height; ++y)
-      for (int x = 0; x < s.width; ++x) indirect.at(x, y) = film.at(x, y) - direct->at(x, y);
-    const std::string global = withSuffix(output, "global");
-    direct->alpha() = indirect.alpha() = film.alpha();
-    writeImage(withSuffix(output, "direct"), *direct, false, metadata, display);
-    writeImage(global, film, false, metadata, display);
-    writeImage(withSuffix(output, "indirect"), indirect, false, metadata, display);
-    written = {withSuffix(output, "direct"), global, withSuffix(output, "indirect")};
-    const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
-    std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
-                 "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
-  } else {
-    writeImage(output, film, integrator->signedOutput(), metadata, display);
-    written = {output};
-  }
-  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (framesDone < seq.frames) total.meanSamples *= double(seq.frames) / double(framesDone);
+
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
-  if (!flags.stats.empty()) writeStats(flags.stats, scene, world, result, threads, total);
+  if (!flags.stats.empty())
+    writeStats(flags.stats, scene, loadSeconds, buildSeconds, total, framesDone, threads, seconds);
   if (!flags.quiet) {
-    const RayCounters& c = result.counters;
+    const RayCounters& c = total.counters;
     char buf[96];
     if (s.noiseThreshold > 0)
-      std::snprintf(buf, sizeof buf, "%d-%d (mean %.1f, adaptive %g)", result.minSamples, result.maxSamples,
-                    result.meanSamples, s.noiseThreshold);
+      std::snprintf(buf, sizeof buf, "%d-%d (mean %.1f, adaptive %g)", total.minSamples, total.maxSamples,
+                    total.meanSamples, s.noiseThreshold);
     else
-      std::snprintf(buf, sizeof buf, "%d", result.minSamples);
+      std::snprintf(buf, sizeof buf, "%d", total.minSamples);
     const std::string sppSummary = buf;
+    const std::string frameSummary = seq.frames > 1 ? ", " + std::to_string(framesDone) + " frames" : "";
     const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d, %s spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: %dx%d%s, %s spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
                  "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
                  "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
-                 s.width, s.height, sppSummary.c_str(), s.integrator.c_str(), intersectorName(s.intersector).c_str(),
-                 threads, world.loadSeconds(), world.buildSeconds(), result.seconds, total,
+                 s.width, s.height, frameSummary.c_str(), sppSummary.c_str(), s.integrator.c_str(),
+                 intersectorName(s.intersector).c_str(), threads, loadSeconds, buildSeconds, total.seconds, seconds,
                  (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
-                 result.seconds > 0 ? rays / result.seconds * 1e-6 : 0.0,
+                 total.seconds > 0 ? rays / total.seconds * 1e-6 : 0.0,
                  (unsigned long long)c.traversal.cellsVisited, (unsigned long long)c.traversal.cellsSolved,
                  (unsigned long long)c.traversal.rootsRefined);
   }
-  for (const std::string& path : written) std::printf("%s\n", path.c_str());
-  if (result.interrupted) {
-    std::fprintf(stderr, "isotrace: interrupted: wrote the image of %d of %d samples per pixel\n",
-                 result.minSamples, s.spp);
+  if (total.interrupted) {
+    std::fprintf(stderr, "isotrace: interrupted: wrote the image of %d of %d samples per pixel%s\n", total.minSamples,
+                 s.spp, seq.frames > 1 ? (" (frame " + std::to_string(framesDone - 1) + "; the rest not rendered)").c_str() : "");
     return 130;
   }
   return 0;
@@ -685,6 +799,10 @@ int runCommandLine(int argc, char** argv) {
   renderCmd->add_flag("--alpha", flags.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
   renderCmd->add_option("--clamp", flags.clamp, "clip each sample's indirect radiance to X (biased; 0: off, the default)");
   renderCmd->add_option("--adaptive", flags.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");
+  renderCmd->add_option("--frames", flags.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep and/or --orbit)")
+      ->check(CLI::Range(1, 100000));
+  renderCmd->add_option("--iso-sweep", flags.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
+  renderCmd->add_option("--orbit", flags.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");
   std::string infoScene;
   CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
   infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();

@@ -352,6 +352,50 @@ std::vector<float> readExr(const std::string& path, std::vector<std::string>* ch
   return data;
 }
 
+// Frame sequences: every frame is the picture a single render of that frame's scene gives, bit
+// for bit (an iso sweep builds each value's surface anew; an orbit only moves the camera).
+TEST(Cli, FrameSequencesAreTheSingleRendersOfTheirFrames) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", mixedScene());
+  const auto sweep = runIsotrace("render " + dir + "/s.json -o " + dir + "/sweep.exr --frames 3 --iso-sweep 0:0.4:0.8 --spp 2 --quiet --stats " + dir + "/sweep.json");
+  ASSERT_EQ(sweep.status, 0) << sweep.err;
+  EXPECT_EQ(sweep.out, dir + "/sweep.0000.exr\n" + dir + "/sweep.0001.exr\n" + dir + "/sweep.0002.exr\n");
+  std::string scene = mixedScene();
+  scene.replace(scene.find("\"value\": 0.6"), 12, "\"value\": 0.6000");  // frame 1 of 0.4 .. 0.8
+  test::writeText(dir + "/middle.json", scene);
+  ASSERT_EQ(runIsotrace("render " + dir + "/middle.json -o " + dir + "/middle.exr --spp 2 --quiet").status, 0);
+  EXPECT_EQ(readExr(dir + "/sweep.0001.exr"), readExr(dir + "/middle.exr"));
+  EXPECT_NE(readExr(dir + "/sweep.0000.exr"), readExr(dir + "/sweep.0002.exr"));
+  std::ifstream stats(dir + "/sweep.json");
+  const std::string text((std::istreambuf_iterator<char>(stats)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\"frames\": 3"), std::string::npos) << text;
+
+  const auto orbit = runIsotrace("render " + dir + "/s.json -o " + dir + "/orbit.exr --frames 4 --orbit 360 --spp 2 --quiet");
+  ASSERT_EQ(orbit.status, 0) << orbit.err;
+  ASSERT_EQ(runIsotrace("render " + dir + "/s.json -o " + dir + "/still.exr --spp 2 --quiet").status, 0);
+  EXPECT_EQ(readExr(dir + "/orbit.0000.exr"), readExr(dir + "/still.exr"));
+  EXPECT_NE(readExr(dir + "/orbit.0001.exr"), readExr(dir + "/still.exr"));
+  // A half turn of this scene (symmetric about the vertical plane through the camera) mirrors
+  // the picture: the ball stays in the middle, so the centre pixel is the same colour.
+  const std::vector<float> half = readExr(dir + "/orbit.0002.exr"), still = readExr(dir + "/still.exr");
+  const size_t centre = (size_t(12) * 32 + 16) * 3;
+  EXPECT_NEAR(half[centre], still[centre], 0.25f * still[centre] + 0.02f);
+
+  for (const auto& [args, message] : std::vector<std::pair<std::string, std::string>>{
+           {"--frames 3", "--frames: a sequence needs --iso-sweep and/or --orbit"},
+           {"--orbit 90", "--iso-sweep and --orbit make a sequence: give --frames N"},
+           {"--frames 2 --iso-sweep 1:0:1", "--iso-sweep: no iso-surface 1 (the scene has 1, counted from 0 over all volumes)"},
+           {"--frames 2 --iso-sweep 0:0", "--iso-sweep: expected SURFACE:FROM:TO"},
+           {"--frames 2 --iso-sweep 0:a:1", "'a' and '1' must be numbers"},
+           {"--frames 2 --iso-sweep 0:0:inf", "the iso values must be finite"},
+           {"--frames 2 --orbit 1e9", "--orbit: expected degrees in [-36000, 36000]"}}) {
+    const auto r = runIsotrace("render " + dir + "/s.json -o " + dir + "/bad.png " + args);
+    EXPECT_EQ(r.status, 2) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+    EXPECT_FALSE(fs::exists(dir + "/bad.0000.png")) << args;
+  }
+}
+
 TEST(Cli, CompareWritesDirectGlobalAndIndirect) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/m.json", mixedScene());
