@@ -1,6 +1,7 @@
 // Reading a volume in a child process (loaders.h, readInChildProcess). Debian builds GDCM with
 // its assertions on, and malformed files trip them (pydicom's own test files do); OpenVDB trusts
-// the sizes in its streams and allocates whatever they say, or reads past its buffers. An
+// the sizes in its streams and allocates whatever they say, or reads past its buffers; libnifti
+// overflows a stack buffer on a malformed header (a fuzzer finding). An
 // abort(), a crash or an out-of-memory there would take isotrace down with it, so such a
 // library reads in a child: the child hands back the samples through a memfd (the parent maps
 // them: no copy) and the rest (geometry, notes, or the InputError) through a pipe; if it dies,
@@ -39,6 +40,7 @@ constexpr bool kAddressSanitizer = false;
 struct Header {
   char tag[2];  // "ok"
   int32_t sparse;
+  int32_t type;  // ScalarType of a dense grid
   int32_t dims[3];
   int32_t bricks[3];
   double origin[3], spacing[3], toWorld[12];
@@ -96,7 +98,7 @@ bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
            writeAll(samplesFd, s->blocks, s->blockCount * SparseSamples::kBlockSize * 4, &at) &&
            writeAll(samplesFd, s->uniform, s->uniformCount * 4, &at);
     } else {
-      if (g.type() != ScalarType::Float32) throw InputError(path, "", "internal: a child reader must make float32 samples");
+      h.type = int32_t(g.type());
       ok = writeAll(samplesFd, g.data(), g.bytes(), &at);
     }
     if (!ok) _exit(3);
@@ -150,8 +152,9 @@ VolumeFile readInChildProcess(const std::string& path, const char* library, cons
   std::memcpy(&h, report.data(), sizeof h);
   const Vec3i dims{h.dims[0], h.dims[1], h.dims[2]};
   const size_t brickCount = size_t(h.bricks[0]) * size_t(h.bricks[1]) * size_t(h.bricks[2]);
+  const ScalarType type = ScalarType(h.type);
   const size_t bytes = h.sparse ? (brickCount + h.blockCount * SparseSamples::kBlockSize + h.uniformCount) * 4
-                                : size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * 4;
+                                : size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * scalarTypeSize(type);
   struct stat info;
   if (fstat(samplesFd, &info) != 0 || size_t(info.st_size) != bytes || bytes == 0) throw InputError(path, "", malformed);
   void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, samplesFd, 0);
@@ -170,7 +173,7 @@ VolumeFile readInChildProcess(const std::string& path, const char* library, cons
     s->owner = mapping;
     v.grid = Grid(dims, std::move(s), origin, spacing);
   } else {
-    v.grid = Grid(dims, ScalarType::Float32, mapping, origin, spacing);
+    v.grid = Grid(dims, type, mapping, origin, spacing);
   }
   v.toWorld = Transform::fromRows(h.toWorld);
   std::istringstream lines(report.substr(sizeof h));

@@ -1,8 +1,6 @@
 #include "volume/loaders.h"
 
-#include <fcntl.h>
 #include <sys/mman.h>
-#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -720,30 +718,6 @@ Grid loadVtk(const std::string& path) {
 
 std::string niftiTypeName(int datatype) { return nifti_datatype_string(datatype); }
 
-// libnifti prints some errors to stderr whatever its debug level ("** ERROR: ... bad
-// datatype"); isotrace says what is wrong itself, in one line, so stderr is muted meanwhile.
-class QuietStderr {
- public:
-  QuietStderr() {
-    std::fflush(stderr);
-    m_saved = dup(2);
-    const int devNull = open("/dev/null", O_WRONLY | O_CLOEXEC);
-    if (devNull >= 0) {
-      dup2(devNull, 2);
-      close(devNull);
-    }
-  }
-  ~QuietStderr() {
-    std::fflush(stderr);
-    if (m_saved >= 0) {
-      dup2(m_saved, 2);
-      close(m_saved);
-    }
-  }
-
- private:
-  int m_saved = -1;
-};
 
 // The file's samples of one 3D frame, in the file's byte order: `count` bytes from `offset` of
 // the image file (inflated as it goes when gzip; the rest of a 4D stream is not inflated).
@@ -792,12 +766,10 @@ VolumeFile loadNifti(const std::string& path) {
   openFile(path, fileSize);  // missing file or a directory: the usual errors
   nifti_set_debug_level(0);
   int version = 0;
-  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nullptr, nifti_image_free);
-  {
-    QuietStderr quiet;
-    nim.reset(nifti_image_read(path.c_str(), 0));
-    if (nim) std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the layout, not the version
-  }
+  // (In a child process whose stderr is muted: libnifti prints some errors whatever its debug
+  // level, and isotrace says what is wrong itself, in one line.)
+  std::unique_ptr<nifti_image, void (*)(nifti_image*)> nim(nifti_image_read(path.c_str(), 0), nifti_image_free);
+  if (nim) std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the layout, not the version
   if (!nim)
     throw InputError(path, "header", "not a readable NIfTI-1 or NIfTI-2 header (or its image file is missing)");
   VolumeFile out;
@@ -1018,7 +990,8 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (endsWith(name, ".mhd") || endsWith(name, ".mha")) return wrap(loadMetaImage(path), "MetaImage");
   if (endsWith(name, ".vtk")) return wrap(loadVtk(path), "VTK");
   if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz"))
-    return loadNifti(path);
+    // libnifti overflows a stack buffer on some malformed headers: it reads in a child process.
+    return readInChildProcess(path, "libnifti", [&] { return loadNifti(path); });
   for (const char* raw : {".raw", ".bin", ".dat"})
     if (endsWith(name, raw) || endsWith(name, std::string(raw) + ".gz")) return wrap(loadRaw(path, layout), "raw");
   if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, part.series);

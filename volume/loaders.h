@@ -62,9 +62,9 @@ VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool d
 void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
                    const std::string& where);
 // Runs `read` in a child process and returns its volume (volume/isolated.cpp): for libraries
-// that abort, crash or allocate without bound on malformed files (GDCM, OpenVDB). The child's
-// grid must be float32 (dense) or sparse; its InputError comes back as is, its death as an
-// InputError naming `library` and the file.
+// that abort, crash or allocate without bound on malformed files (GDCM, OpenVDB, libnifti). The
+// samples come back through shared memory the parent maps; the child's InputError comes back
+// as is, its death as an InputError naming `library` and the file.
 VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read);
 
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
