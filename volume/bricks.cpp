@@ -20,15 +20,14 @@ BrickGrid::BrickGrid(const Grid& grid) {
   // registers (one pass over the samples that scattered each into its bricks took 0.8 s for 512^3).
   if (const SparseSamples* sparse = grid.sparse()) {
     // The bricks are the sparse grid's own: a block's range, or its one value.
-    constexpr size_t kBlockSize = size_t(SparseSamples::kBlock) * SparseSamples::kBlock * SparseSamples::kBlock;
     tbb::parallel_for(size_t(0), n, [&](size_t b) {
       const int32_t slot = sparse->slot[b];
       if (slot < 0) {
-        m_lo[b] = m_hi[b] = sparse->uniform[size_t(-1 - slot)];
+        m_lo[b] = m_hi[b] = sparse->uniformValue(slot);
         return;
       }
-      const float* v = sparse->blocks + size_t(slot) * kBlockSize;
-      const auto [lo, hi] = std::minmax_element(v, v + kBlockSize);
+      const float* v = sparse->block(slot);
+      const auto [lo, hi] = std::minmax_element(v, v + SparseSamples::kBlockSize);
       m_lo[b] = *lo;
       m_hi[b] = *hi;
     });

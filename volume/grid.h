@@ -37,6 +37,10 @@ struct SparseSamples {
   size_t blockCount = 0, uniformCount = 0;
   std::shared_ptr<const void> owner;      // keeps the arrays alive (vectors, or a mapping)
   size_t brickCount() const { return size_t(bricks.x) * bricks.y * bricks.z; }
+  // The slot of brick (bx, by, bz); a stored block's samples (x fastest), or a constant brick's value.
+  int32_t slotOf(int bx, int by, int bz) const { return slot[(size_t(bz) * bricks.y + size_t(by)) * bricks.x + size_t(bx)]; }
+  const float* block(int32_t s) const { return blocks + size_t(s) * kBlockSize; }
+  float uniformValue(int32_t s) const { return uniform[size_t(-1 - s)]; }
   size_t bytes() const { return brickCount() * 4 + (blockCount * kBlockSize + uniformCount) * 4; }
 };
 
@@ -135,10 +139,10 @@ class Grid {
   float sparseValue(int x, int y, int z) const {
     const SparseSamples& s = *m_sparse;
     const int bx = std::min(x / 8, s.bricks.x - 1), by = std::min(y / 8, s.bricks.y - 1), bz = std::min(z / 8, s.bricks.z - 1);
-    const int32_t slot = s.slot[(size_t(bz) * s.bricks.y + by) * s.bricks.x + bx];
-    if (slot < 0) return s.uniform[size_t(-1 - slot)];
+    const int32_t slot = s.slotOf(bx, by, bz);
+    if (slot < 0) return s.uniformValue(slot);
     constexpr int k = SparseSamples::kBlock;
-    return s.blocks[size_t(slot) * k * k * k + (size_t(z - 8 * bz) * k + size_t(y - 8 * by)) * k + size_t(x - 8 * bx)];
+    return s.block(slot)[(size_t(z - 8 * bz) * k + size_t(y - 8 * by)) * k + size_t(x - 8 * bx)];
   }
 };
 

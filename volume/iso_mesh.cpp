@@ -49,16 +49,16 @@ IsoMesh extractIsoMesh(const Grid& grid, double iso) {
     for (int bz = 0; bz < n.z; ++bz)
       for (int by = 0; by < n.y; ++by)
         for (int bx = 0; bx < n.x; ++bx) {
-          const int32_t slot = sparse->slot[(size_t(bz) * n.y + by) * n.x + bx];
+          const int32_t slot = sparse->slotOf(bx, by, bz);
           const Vec3i lo{8 * bx, 8 * by, 8 * bz};
           const Vec3i hi{bx + 1 == n.x ? 8 : 7, by + 1 == n.y ? 8 : 7, bz + 1 == n.z ? 8 : 7};
           if (slot < 0) {
             vdb->tree().fill(openvdb::CoordBBox(openvdb::Coord(lo.x, lo.y, lo.z),
                                                 openvdb::Coord(lo.x + hi.x, lo.y + hi.y, lo.z + hi.z)),
-                             sparse->uniform[size_t(-1 - slot)], true);
+                             sparse->uniformValue(slot), true);
             continue;
           }
-          const float* block = sparse->blocks + size_t(slot) * k * k * k;
+          const float* block = sparse->block(slot);
           for (int z = 0; z <= hi.z; ++z)
             for (int y = 0; y <= hi.y; ++y)
               for (int x = 0; x <= hi.x; ++x)

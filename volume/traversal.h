@@ -127,15 +127,13 @@ struct SparseCellAccess : BrickClassLookup {
   template <typename Real>
   void load(const Vec3i& c, Real iso, Real g[8]) const {
     constexpr size_t k = SparseSamples::kBlock;
-    const int32_t slot =
-        sparse->slot[(size_t(c.z >> 3) * sparse->bricks.y + size_t(c.y >> 3)) * sparse->bricks.x + size_t(c.x >> 3)];
+    const int32_t slot = sparse->slotOf(c.x >> 3, c.y >> 3, c.z >> 3);
     if (slot < 0) {
-      const Real v = Real(sparse->uniform[size_t(-1 - slot)]) - iso;
+      const Real v = Real(sparse->uniformValue(slot)) - iso;
       for (int i = 0; i < 8; ++i) g[i] = v;
       return;
     }
-    const float* p = sparse->blocks + size_t(slot) * k * k * k + (size_t(c.z & 7) * k + size_t(c.y & 7)) * k +
-                     size_t(c.x & 7);
+    const float* p = sparse->block(slot) + (size_t(c.z & 7) * k + size_t(c.y & 7)) * k + size_t(c.x & 7);
     g[0] = Real(p[0]) - iso;
     g[1] = Real(p[1]) - iso;
     g[2] = Real(p[k]) - iso;

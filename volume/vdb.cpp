@@ -136,7 +136,7 @@ VolumeFile toSparse(const GridT& grid, const std::string& path) {
   // Two passes, so that the blocks are allocated once at their exact size (a growing or
   // shrunk vector would hold twice the memory for a moment): first which bricks vary, then
   // their blocks.
-  float block[k * k * k];
+  float block[SparseSamples::kBlockSize];
   size_t stored = 0;
   for (int bz = 0; bz < bricks.z; ++bz)
     for (int by = 0; by < bricks.y; ++by)
@@ -156,12 +156,12 @@ VolumeFile toSparse(const GridT& grid, const std::string& path) {
         }
         storage->slot[b] = varies ? int32_t(stored++) : uniform(block[0]);
       }
-  storage->blocks.resize(stored * k * k * k);
+  storage->blocks.resize(stored * SparseSamples::kBlockSize);
   for (int bz = 0; bz < bricks.z; ++bz)
     for (int by = 0; by < bricks.y; ++by)
       for (int bx = 0; bx < bricks.x; ++bx) {
         const int32_t slot = storage->slot[brickIndex(bx, by, bz)];
-        if (slot >= 0) fill(base(bx, by, bz), storage->blocks.data() + size_t(slot) * k * k * k);
+        if (slot >= 0) fill(base(bx, by, bz), storage->blocks.data() + size_t(slot) * SparseSamples::kBlockSize);
       }
   for (float v : storage->blocks)
     if (!std::isfinite(v)) throw InputError(path, "grid '" + grid.getName() + "'", "a value is not finite");
