@@ -22,6 +22,7 @@
 
 #include "bench/accuracy.h"
 #include "bench/watertight.h"
+#include "renderer/distributed.h"
 #include "renderer/render.h"
 #include "scene/gltf.h"
 #include "volume/iso_mesh.h"
@@ -182,8 +183,24 @@ std::string jsonString(const std::string& s) {
   return out + "\"";
 }
 
+// Under MPI, one frame: tiles and busy seconds per rank, and busiest over idlest rank.
+std::string rankFigures(const RankFigures* f) {
+  if (!f || f->tiles.empty()) return "";
+  std::string tiles, busy;
+  double most = 0, least = INFINITY;
+  for (size_t r = 0; r < f->tiles.size(); ++r) {
+    tiles += (r ? ", " : "") + std::to_string(f->tiles[r]);
+    busy += (r ? ", " : "") + jsonNumber(f->busySeconds[r]);
+    most = std::max(most, f->busySeconds[r]);
+    least = std::min(least, f->busySeconds[r]);
+  }
+  return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +
+         jsonNumber(least > 0 ? most / least : 0) + ",\n";
+}
+
 void writeStats(const std::string& path, const SceneDesc& scene, double loadSeconds, double buildSeconds,
-                const RenderResult& r, int frames, int threads, double totalSeconds) {
+                const RenderResult& r, int frames, int threads, double totalSeconds, int ranks,
+                const RankFigures* perRank) {
   const RenderSettings& s = scene.settings;
   const RayCounters& c = r.counters;
   const uint64_t rays = c.camera + c.shadow + c.indirect;
@@ -194,7 +211,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
-               "  \"max_depth\": %d,\n  \"frames\": %d,\n"
+               "  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
@@ -202,7 +219,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
-               frames, loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
@@ -286,28 +303,35 @@ CameraDesc orbitCamera(CameraDesc c, double degrees) {
   return c;
 }
 
-int render(const RenderFlags& flags) {
-  const auto start = std::chrono::steady_clock::now();
-  SceneDesc scene = parseSceneFile(flags.scene);
-  applyFlags(flags, scene);
-  const FrameSequence seq = frameSequence(flags, scene);
-  const std::string output = flags.output.empty()
-                                 ? std::filesystem::path(flags.scene).stem().string() + ".png"
-                                 : flags.output;
-  std::error_code ec;
-  if (std::filesystem::is_directory(output, ec)) throw InputError(output, "", "is a directory; name the output file");
-  const DisplaySettings display = displayFlags(flags, output);  // bad names and values before any work
-  const RenderSettings& s = scene.settings;
+// Loads the scene and checks every flag and output before any work: the part of a render
+// that every rank of an MPI job does alike.
+struct RenderSetup {
+  SceneDesc scene;
+  FrameSequence seq;
+  std::string output;
+  DisplaySettings display;
   RenderOptions options;
-  options.spp = s.spp;
-  options.seed = s.seed;
-  options.threads = s.threads;
-  options.aovs = parseAovs(flags.aov, output);
-  options.alpha = flags.alpha;
-  options.noiseThreshold = s.noiseThreshold;
-  options.progress = !flags.quiet && isatty(2);
-  for (int f : {0, seq.frames - 1}) {  // the first and last names: the same folder, other digits
-    const std::string name = seq.name(output, f);
+};
+
+RenderSetup prepareRender(const RenderFlags& flags) {
+  RenderSetup r;
+  r.scene = parseSceneFile(flags.scene);
+  applyFlags(flags, r.scene);
+  r.seq = frameSequence(flags, r.scene);
+  r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
+  std::error_code ec;
+  if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
+  r.display = displayFlags(flags, r.output);  // bad names and values before any work
+  const RenderSettings& s = r.scene.settings;
+  r.options.spp = s.spp;
+  r.options.seed = s.seed;
+  r.options.threads = s.threads;
+  r.options.aovs = parseAovs(flags.aov, r.output);
+  r.options.alpha = flags.alpha;
+  r.options.noiseThreshold = s.noiseThreshold;
+  r.options.progress = !flags.quiet && isatty(2);
+  for (int f : {0, r.seq.frames - 1}) {  // the first and last names: the same folder, other digits
+    const std::string name = r.seq.name(r.output, f);
     if (s.integrator == "compare") {
       for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(name, part));
     } else {
@@ -315,37 +339,36 @@ int render(const RenderFlags& flags) {
     }
   }
   if (!flags.stats.empty()) checkWritable(flags.stats);
-  // From here on a stop signal is a request: loading ends first (then nothing is written),
-  // a render ends at the next tile and its image is written whole (a sequence then stops).
-  clearStopRequest();
-  auto previousInt = std::signal(SIGINT, onStopSignal);
-  auto previousTerm = std::signal(SIGTERM, onStopSignal);
-  struct RestoreSignals {
-    decltype(previousInt) i, t;
-    ~RestoreSignals() {
-      std::signal(SIGINT, i == SIG_ERR ? SIG_DFL : i);
-      std::signal(SIGTERM, t == SIG_ERR ? SIG_DFL : t);
-    }
-  } restore{previousInt, previousTerm};
+  return r;
+}
 
+// The frames this rank renders, written and reported (rank 0 reports for all).
+template <typename Mine, typename Build>
+int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool byTiles, Mine mine,
+                 std::unique_ptr<World>& world, int& worldFrame, Build buildWorld, double& loadSeconds,
+                 double& buildSeconds, std::chrono::steady_clock::time_point start) {
+  const SceneDesc& scene = setup.scene;
+  const FrameSequence& seq = setup.seq;
+  const RenderSettings& s = scene.settings;
+  const std::string& output = setup.output;
+  const DisplaySettings& display = setup.display;
+  RenderOptions options = setup.options;
+  options.progress = options.progress && job.rank() == 0;
   RenderResult total;
-  double loadSeconds = 0, buildSeconds = 0;
+  RankFigures figures;
   int framesDone = 0;
-  std::unique_ptr<World> world;
+  bool warned = false;
   for (int frame = 0; frame < seq.frames; ++frame) {
-    // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
-    if (!world || seq.surface >= 0) {
-      if (seq.surface >= 0) seq.iso(scene)->value = seq.isoValue(frame);
-      world = std::make_unique<World>(scene, s.intersector);
-      loadSeconds += world->loadSeconds();
-      buildSeconds += world->buildSeconds();
-      if (stopRequested()) {
-        std::fprintf(stderr, "isotrace: interrupted while loading: no image written for frame %d\n", frame);
-        return 130;
-      }
-      if (frame == 0)
-        for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+    if (!mine(frame)) continue;
+    if (worldFrame != frame) buildWorld(frame);
+    if (stopRequested()) {
+      std::fprintf(stderr, "isotrace: %sinterrupted while loading: no image written for frame %d\n", job.where().c_str(), frame);
+      if (job.distributed()) job.abort(130);
+      return 130;
     }
+    if (!warned && job.rank() == 0)
+      for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+    warned = true;
     const double degrees = seq.orbit * double(frame) / double(seq.frames);
     Camera camera(orbitCamera(world->camera(), degrees), s.width, s.height);
     auto integrator = makeIntegrator(s.integrator, *world, s);
@@ -353,7 +376,9 @@ int render(const RenderFlags& flags) {
     std::unique_ptr<Film> direct;
     if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
 
-    const RenderResult result = renderFrame(camera, *integrator, options, film, direct.get());
+    const RenderResult result = byTiles ? renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures)
+                                        : renderFrame(camera, *integrator, options, film, direct.get());
+    if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
 
     std::map<std::string, std::string> metadata = {
         {"Software", "isotrace"},
@@ -403,19 +428,27 @@ int render(const RenderFlags& flags) {
     std::fflush(stdout);
     total.counters.add(result.counters);
     total.seconds += result.seconds;
-    total.minSamples = frame == 0 ? result.minSamples : std::min(total.minSamples, result.minSamples);
+    total.minSamples = framesDone == 0 ? result.minSamples : std::min(total.minSamples, result.minSamples);
     total.maxSamples = std::max(total.maxSamples, result.maxSamples);
-    total.meanSamples += result.meanSamples / seq.frames;
+    total.meanSamples += result.meanSamples;  // averaged over the frames below
     total.interrupted = result.interrupted;
     ++framesDone;
     if (result.interrupted) break;
   }
-  if (framesDone < seq.frames) total.meanSamples *= double(seq.frames) / double(framesDone);
+  if (framesDone > 0) total.meanSamples /= framesDone;
+  if (job.distributed() && !byTiles) {
+    // The frames of all ranks: counters and samples on rank 0, which alone reports them.
+    const int framesAll = job.sum(framesDone);
+    total = job.combine(total, framesDone, framesAll);
+    framesDone = framesAll;
+    if (job.rank() != 0) return total.interrupted ? 130 : 0;
+  }
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
   if (!flags.stats.empty())
-    writeStats(flags.stats, scene, loadSeconds, buildSeconds, total, framesDone, threads, seconds);
+    writeStats(flags.stats, scene, loadSeconds, buildSeconds, total, framesDone, threads, seconds, job.size(),
+               byTiles ? &figures : nullptr);
   if (!flags.quiet) {
     const RayCounters& c = total.counters;
     char buf[96];
@@ -428,11 +461,12 @@ int render(const RenderFlags& flags) {
     const std::string frameSummary = seq.frames > 1 ? ", " + std::to_string(framesDone) + " frames" : "";
     const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d%s, %s spp, %s, %s, %d threads: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: %dx%d%s, %s spp, %s, %s, %d threads%s: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
                  "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
                  "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
                  s.width, s.height, frameSummary.c_str(), sppSummary.c_str(), s.integrator.c_str(),
-                 intersectorName(s.intersector).c_str(), threads, loadSeconds, buildSeconds, total.seconds, seconds,
+                 intersectorName(s.intersector).c_str(), threads,
+                 job.distributed() ? (" x " + std::to_string(job.size()) + " ranks").c_str() : "", loadSeconds, buildSeconds, total.seconds, seconds,
                  (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
                  total.seconds > 0 ? rays / total.seconds * 1e-6 : 0.0,
                  (unsigned long long)c.traversal.cellsVisited, (unsigned long long)c.traversal.cellsSolved,
@@ -444,6 +478,80 @@ int render(const RenderFlags& flags) {
     return 130;
   }
   return 0;
+}
+
+
+int render(const RenderFlags& flags) {
+  const auto start = std::chrono::steady_clock::now();
+  MpiJob job;  // one rank of many under mpirun; otherwise MPI is not touched
+  // A stop signal is a request from here on: loading ends first (then nothing is written), a
+  // render ends at the next tile (the next pixel under MPI) and its image is written whole (a
+  // sequence then stops).
+  clearStopRequest();
+  auto previousInt = std::signal(SIGINT, onStopSignal);
+  auto previousTerm = std::signal(SIGTERM, onStopSignal);
+  struct RestoreSignals {
+    decltype(previousInt) i, t;
+    ~RestoreSignals() {
+      std::signal(SIGINT, i == SIG_ERR ? SIG_DFL : i);
+      std::signal(SIGTERM, t == SIG_ERR ? SIG_DFL : t);
+    }
+  } restore{previousInt, previousTerm};
+
+  // Under MPI one frame is spread over the ranks by tiles; a sequence by whole frames (frame f
+  // on rank f mod N, which writes it).
+  RenderSetup setup;
+  const bool byTiles = job.distributed() && flags.frames == 1;
+  auto mine = [&](int frame) { return byTiles || frame % job.size() == job.rank(); };
+  std::unique_ptr<World> world;
+  int worldFrame = -1;
+  double loadSeconds = 0, buildSeconds = 0;
+  auto buildWorld = [&](int frame) {
+    // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
+    if (world && setup.seq.surface < 0) return;
+    if (setup.seq.surface >= 0) setup.seq.iso(setup.scene)->value = setup.seq.isoValue(frame);
+    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector);
+    worldFrame = frame;
+    loadSeconds += world->loadSeconds();
+    buildSeconds += world->buildSeconds();
+  };
+  auto firstFrame = [&] {
+    for (int f = 0; f < setup.seq.frames; ++f)
+      if (mine(f)) return f;
+    return -1;
+  };
+  if (!job.distributed()) {
+    setup = prepareRender(flags);
+  } else {
+    // Every rank loads for itself; before the ranks talk, they agree on the first failure, which
+    // rank 0 reports in one line (naming the rank that saw it), and all end with status 2.
+    std::string error;
+    try {
+      setup = prepareRender(flags);
+      if (const int f = firstFrame(); f >= 0) buildWorld(f);
+      if (stopRequested()) error = "interrupted while loading: no image written";
+    } catch (const InputError& e) {
+      error = e.what();
+    } catch (const std::bad_alloc&) {
+      error = "out of memory";
+    } catch (const std::exception& e) {
+      error = std::string("internal error: ") + e.what();
+    }
+    error = job.firstError(error);
+    if (!error.empty()) {
+      if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", error.c_str());
+      return stopRequested() ? 130 : 2;
+    }
+  }
+  try {
+    return renderFrames(flags, job, setup, byTiles, mine, world, worldFrame, buildWorld, loadSeconds, buildSeconds, start);
+  } catch (const std::exception& e) {
+    if (!job.distributed()) throw;
+    // The other ranks would wait for this one forever: say which rank failed, end them all.
+    const InputError* input = dynamic_cast<const InputError*>(&e);
+    std::fprintf(stderr, "isotrace: %s%s%s\n", job.where().c_str(), input ? "" : "internal error: ", e.what());
+    job.abort(input ? 2 : 1);
+  }
 }
 
 const char* materialTypeName(MaterialType t) {

@@ -19,16 +19,6 @@ namespace {
 
 volatile std::sig_atomic_t g_stop = 0;
 
-// What a pixel has gathered so far; sums in double, in sample order.
-struct PixelSums {
-  Vec3d L, L2, direct, albedo, normal;
-  double luminance = 0, luminance2 = 0;
-  double depth = 0;
-  int depthHits = 0;  // samples whose camera ray hit something
-  int samples = 0;
-  bool converged = false;  // adaptive sampling: takes no more samples
-};
-
 double seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
 }
@@ -45,11 +35,89 @@ void requestStop() { g_stop = 1; }
 void clearStopRequest() { g_stop = 0; }
 bool stopRequested() { return g_stop != 0; }
 
+TileRenderer::TileRenderer(const Camera& camera, const Integrator& integrator, const RenderOptions& options,
+                           int width, int height)
+    : m_camera(camera), m_integrator(integrator), m_options(options), m_width(width), m_height(height),
+      m_tilesX((width + kTile - 1) / kTile), m_tilesY((height + kTile - 1) / kTile) {}
+
+TileRenderer::Rect TileRenderer::rect(int tile) const {
+  const int x0 = (tile % m_tilesX) * kTile, y0 = (tile / m_tilesX) * kTile;
+  return {x0, y0, std::min(x0 + kTile, m_width), std::min(y0 + kTile, m_height)};
+}
+
+int TileRenderer::nextPassStart(int passStart, int pass, int spp) {
+  const int size = pass <= 1 ? 1 : std::min(1 << std::min(pass - 1, 4), 16);
+  return std::min(spp, passStart + size);
+}
+
+bool TileRenderer::converges(const PixelSums& p) const {
+  const double n = p.samples, mean = p.luminance / n;
+  const double variance = n > 1 ? std::max(0.0, p.luminance2 / n - mean * mean) * n / (n - 1) : 0;
+  return std::sqrt(variance / n) <= m_options.noiseThreshold * std::max(mean, 0.01);
+}
+
+uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
+                                  bool stopPerPixel) const {
+  const Rect r = rect(tile);
+  uint64_t taken = 0;
+  for (int y = r.y0; y < r.y1; ++y)
+    for (int x = r.x0; x < r.x1; ++x) {
+      if (stopPerPixel && stopRequested()) return taken;
+      PixelSums& p = sums[size_t(y - r.y0) * stride + size_t(x - r.x0)];
+      if (p.converged) continue;
+      for (int s = s0; s < s1; ++s) {
+        Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
+        const float jx = sampler.next(), jy = sampler.next();
+        SampleResult result;
+        m_integrator.Li(m_camera.generateRay(x + jx, y + jy), sampler, counters, result);
+        const bool background = !std::isfinite(result.depth);
+        const Vec3d L = m_options.alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
+        p.L += L;
+        p.L2 += L * L;
+        const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
+        p.luminance += lum;
+        p.luminance2 += lum * lum;
+        p.direct += Vec3d(result.direct);
+        p.albedo += Vec3d(result.albedo);
+        p.normal += Vec3d(result.normal);
+        if (!background) {
+          p.depth += result.depth;
+          ++p.depthHits;
+        }
+        ++p.samples;
+      }
+      taken += uint64_t(s1 - s0);
+    }
+  return taken;
+}
+
+bool TileRenderer::renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums,
+                                RayCounters& counters) const {
+  const Rect r = rect(tile);
+  const int minSamples = std::min(m_options.spp, RenderOptions::kAdaptiveMinSamples);
+  const int end = std::min(m_options.spp, s0 + samples);
+  bool open = true;
+  while (open && s0 < end && !stopRequested()) {
+    const int s1 = nextPassStart(s0, pass, m_options.spp);
+    renderPass(tile, s0, s1, sums, size_t(r.x1 - r.x0), counters, true);
+    ++pass;
+    s0 = s1;
+    if (m_options.noiseThreshold > 0 && !stopRequested()) {
+      open = false;
+      for (int i = 0; i < r.pixels(); ++i) {
+        PixelSums& p = sums[i];
+        if (!p.converged && p.samples >= minSamples) p.converged = converges(p);
+        open = open || !p.converged;
+      }
+    }
+  }
+  return open && s0 < m_options.spp;
+}
+
 RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
                          const RenderOptions& options, Film& film, Film* directFilm) {
-  constexpr int kTile = 16;
   const int w = film.width(), h = film.height();
-  const int tilesX = (w + kTile - 1) / kTile, tilesY = (h + kTile - 1) / kTile;
+  const TileRenderer tiles(camera, integrator, options, w, h);
   std::vector<PixelSums> sums(size_t(w) * h);
   tbb::enumerable_thread_specific<RayCounters> counters;
   const auto start = std::chrono::steady_clock::now();
@@ -74,36 +142,10 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   };
 
   auto renderTile = [&](int tile, int s0, int s1) {
-    RayCounters& local = counters.local();
-    const int x0 = (tile % tilesX) * kTile, y0 = (tile / tilesX) * kTile;
-    const int x1 = std::min(x0 + kTile, w), y1 = std::min(y0 + kTile, h);
-    for (int y = y0; y < y1; ++y)
-      for (int x = x0; x < x1; ++x) {
-        PixelSums& p = sums[size_t(y) * w + x];
-        if (p.converged) continue;
-        for (int s = s0; s < s1; ++s) {
-          Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
-          const float jx = sampler.next(), jy = sampler.next();
-          SampleResult r;
-          integrator.Li(camera.generateRay(x + jx, y + jy), sampler, local, r);
-          const bool background = !std::isfinite(r.depth);
-          const Vec3d L = options.alpha && background ? Vec3d{0, 0, 0} : Vec3d(r.L);
-          p.L += L;
-          p.L2 += L * L;
-          const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
-          p.luminance += lum;
-          p.luminance2 += lum * lum;
-          p.direct += Vec3d(r.direct);
-          p.albedo += Vec3d(r.albedo);
-          p.normal += Vec3d(r.normal);
-          if (!background) {
-            p.depth += r.depth;
-            ++p.depthHits;
-          }
-          ++p.samples;
-        }
-      }
-    done += uint64_t(x1 - x0) * (y1 - y0) * (s1 - s0);
+    const TileRenderer::Rect r = tiles.rect(tile);
+    PixelSums* first = &sums[size_t(r.y0) * w + r.x0];
+    tiles.renderPass(tile, s0, s1, first, size_t(w), counters.local());
+    done += uint64_t(r.pixels()) * (s1 - s0);
     if (options.progress) {
       std::unique_lock<std::mutex> lock(printing, std::try_to_lock);
       if (lock) progress(false);
@@ -112,17 +154,15 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
 
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   RenderResult result;
-  int passStart = 0, passSize = 1;
-  for (int pass = 0; passStart < options.spp && !stopRequested(); ++pass) {
-    const int s0 = passStart, s1 = std::min(options.spp, passStart + passSize);
+  for (int pass = 0, s0 = 0; s0 < options.spp && !stopRequested(); ++pass) {
+    const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp);
     arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<int>(0, tilesX * tilesY, 1), [&](const tbb::blocked_range<int>& r) {
+      tbb::parallel_for(tbb::blocked_range<int>(0, tiles.tiles(), 1), [&](const tbb::blocked_range<int>& r) {
         for (int t = r.begin(); t < r.end(); ++t)
           if (!stopRequested()) renderTile(t, s0, s1);
       });
     });
-    passStart = s1;
-    if (pass >= 1) passSize = std::min(passSize * 2, 16);
+    s0 = s1;
     if (options.noiseThreshold > 0 && !stopRequested()) {
       const int minSamples = std::min(options.spp, RenderOptions::kAdaptiveMinSamples);
       bool open = false;
@@ -131,9 +171,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
           open = open || !p.converged;
           continue;
         }
-        const double n = p.samples, mean = p.luminance / n;
-        const double variance = n > 1 ? std::max(0.0, p.luminance2 / n - mean * mean) * n / (n - 1) : 0;
-        p.converged = std::sqrt(variance / n) <= options.noiseThreshold * std::max(mean, 0.01);
+        p.converged = tiles.converges(p);
         if (p.converged) done += uint64_t(options.spp - p.samples);  // the progress bar's work
         open = open || !p.converged;
       }
@@ -145,7 +183,17 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     progress(true);
     std::fprintf(stderr, "\n");
   }
+  for (const RayCounters& c : counters) result.counters.add(c);
+  resolveFrame(sums, options, film, directFilm, result);
+  return result;
+}
+
+void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& options, Film& film, Film* directFilm,
+                  RenderResult& result) {
+  const int w = film.width(), h = film.height();
   result.minSamples = options.spp;
+  result.maxSamples = 0;
+  result.interrupted = false;
   double totalSamples = 0;
   for (const PixelSums& p : sums) {
     result.minSamples = std::min(result.minSamples, p.samples);
@@ -154,8 +202,6 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     result.interrupted = result.interrupted || (stopRequested() && !p.converged && p.samples < options.spp);
   }
   result.meanSamples = sums.empty() ? 0 : totalSamples / double(sums.size());
-  for (const RayCounters& c : counters) result.counters.add(c);
-
   // Averages; what a pixel lacks (no sample yet, or no hit for depth) is 0 / infinity.
   auto want = [&](const char* name) {
     return std::find(options.aovs.begin(), options.aovs.end(), name) != options.aovs.end();
@@ -186,7 +232,6 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
       if (options.alpha) film.alpha()[i] = float(p.depthHits / n);
       if (samples) samples->data[i] = float(p.samples);
     }
-  return result;
 }
 
 }  // namespace iso

@@ -48,6 +48,58 @@ struct RenderResult {
 RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
                          const RenderOptions& options, Film& film, Film* direct = nullptr);
 
+// What a pixel has gathered so far; sums in double, in sample order. Plain data: the MPI
+// layer sends a tile's sums as bytes.
+struct PixelSums {
+  Vec3d L, L2, direct, albedo, normal;
+  double luminance = 0, luminance2 = 0;
+  double depth = 0;
+  int depthHits = 0;  // samples whose camera ray hit something
+  int samples = 0;
+  bool converged = false;  // adaptive sampling: takes no more samples
+};
+
+// The frame's tiles (16x16 pixels) and how samples reach a tile's pixels, pass by pass: the
+// single-process renderFrame and the MPI layer (renderer/distributed.h), which hands out one
+// pass of one tile at a time, share it, so a pixel gets the same sums in the same order.
+class TileRenderer {
+ public:
+  static constexpr int kTile = 16;
+  struct Rect {
+    int x0, y0, x1, y1;
+    int pixels() const { return (x1 - x0) * (y1 - y0); }
+  };
+
+  TileRenderer(const Camera& camera, const Integrator& integrator, const RenderOptions& options, int width, int height);
+  int tiles() const { return m_tilesX * m_tilesY; }
+  Rect rect(int tile) const;
+  // Samples [s0, s1) of every pixel of `tile` that has not converged, into `sums` (pixel (x0,
+  // y0) of the tile at sums[0], rows `stride` apart). `stopPerPixel`: a stop request ends the
+  // tile at the next pixel instead of the next tile. Returns the samples taken.
+  uint64_t renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
+                      bool stopPerPixel = false) const;
+  // Passes of `tile` from pass `pass` (its first sample `s0`) on, with the adaptive test after
+  // each as renderFrame does it, until at least `samples` more samples (or spp) are reached or
+  // no pixel of the tile is open; a stop request ends it at the next pixel. `pass` and `s0`
+  // come back as the next pass; returns whether the tile has open pixels left.
+  bool renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums, RayCounters& counters) const;
+  // The passes: [passStart(i), passStart(i + 1)) holds 1, 1, 2, 4, 8, 16, 16, ... samples.
+  static int nextPassStart(int passStart, int pass, int spp);
+  // Adaptive sampling: after a pass, whether pixel `p` takes no more samples.
+  bool converges(const PixelSums& p) const;
+
+ private:
+  const Camera& m_camera;
+  const Integrator& m_integrator;
+  const RenderOptions& m_options;
+  int m_width, m_height, m_tilesX, m_tilesY;
+};
+
+// Averages the sums into `film` (and `direct`, and the AOV layers the options ask for), and the
+// sample figures and `interrupted` of `result`.
+void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& options, Film& film, Film* direct,
+                  RenderResult& result);
+
 // Asks a running renderFrame to stop at the next tile boundary (async-signal-safe).
 void requestStop();
 void clearStopRequest();

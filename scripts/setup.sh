@@ -14,7 +14,8 @@ packages=(build-essential cmake pkg-config
           libtinygltf-dev nlohmann-json3-dev libstb-dev
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev
-          libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom)
+          libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
+          libopenmpi-dev openmpi-bin)
 
 missing=()
 for p in "${packages[@]}"; do

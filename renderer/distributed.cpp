@@ -1,0 +1,443 @@
+#include "renderer/distributed.h"
+
+#include <mpi.h>
+#include <tbb/concurrent_queue.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <deque>
+#include <limits>
+#include <thread>
+
+namespace iso {
+
+namespace {
+
+// Messages between the ranks of one frame. The work is a piece: the next passes of one tile,
+// at least kPieceSamples samples (passes of 1, 1, 2 and 4 samples are too short alone to be
+// worth a message). Rank 0 sends the tile's sums with it and gets them back with the samples
+// added, so a pixel's sums grow in sample order whichever rank takes which passes.
+enum Tag : int {
+  kRequest = 1,  // rank -> 0: one more piece, please (no payload)
+  kPiece = 2,    // 0 -> rank: PieceHeader + the tile's sums so far; tile -1: no more
+  kResult = 3,   // rank -> 0: PieceHeader + the tile's sums with the piece's samples
+  kDone = 4,     // rank -> 0: every result sent, nothing more will come
+};
+
+constexpr int kPieceSamples = 8;
+
+struct PieceHeader {
+  int32_t tile = -1;
+  int32_t pass = 0, s0 = 0;  // the first pass of the piece (on return: the next one)
+  int32_t open = 1;          // on return: whether the tile needs more passes
+  double busySeconds = 0;
+};
+
+using Clock = std::chrono::steady_clock;
+
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+bool launchedByMpi() {
+  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"})
+    if (std::getenv(name)) return true;
+  return false;
+}
+
+// A piece with its tile's sums (row-major over the tile), before and after rendering.
+struct Piece {
+  PieceHeader header;
+  std::vector<PixelSums> sums;
+};
+
+// This rank's render threads: each takes pieces from `todo` (tile -1 ends it), renders them
+// and puts them on `done`. The rank's main thread alone talks MPI (MPI_THREAD_FUNNELED).
+class PieceWorkers {
+ public:
+  PieceWorkers(const TileRenderer& tiles, int threads) : m_tiles(tiles), m_counters(size_t(threads)) {
+    for (int i = 0; i < threads; ++i) m_threads.emplace_back([this, i] { run(m_counters[size_t(i)]); });
+  }
+  ~PieceWorkers() { join(); }
+  void push(Piece piece) { m_todo.push(std::move(piece)); }
+  bool pop(Piece& piece) { return m_done.try_pop(piece); }
+  // Ends the threads once the pieces pushed so far are done; the counters of all of them.
+  RayCounters join() {
+    for (size_t i = 0; i < m_threads.size(); ++i) m_todo.push(Piece{});
+    for (std::thread& t : m_threads) t.join();
+    m_threads.clear();
+    RayCounters total;
+    for (const RayCounters& c : m_counters) total.add(c);
+    return total;
+  }
+
+ private:
+  void run(RayCounters& counters) {
+    for (;;) {
+      Piece piece;
+      m_todo.pop(piece);
+      if (piece.header.tile < 0) return;
+      const auto start = Clock::now();
+      PieceHeader& h = piece.header;
+      h.open = m_tiles.renderPasses(h.tile, h.pass, h.s0, kPieceSamples, piece.sums.data(), counters);
+      h.busySeconds = since(start);
+      m_done.push(std::move(piece));
+    }
+  }
+
+  const TileRenderer& m_tiles;
+  std::vector<RayCounters> m_counters;
+  std::vector<std::thread> m_threads;
+  tbb::concurrent_bounded_queue<Piece> m_todo;
+  tbb::concurrent_queue<Piece> m_done;
+};
+
+// A piece as bytes (header, then the sums) and back; false if the bytes are no piece of this frame.
+void pack(const Piece& piece, std::vector<char>& bytes) {
+  bytes.resize(sizeof(PieceHeader) + piece.sums.size() * sizeof(PixelSums));
+  std::memcpy(bytes.data(), &piece.header, sizeof(PieceHeader));
+  if (!piece.sums.empty())
+    std::memcpy(bytes.data() + sizeof(PieceHeader), static_cast<const void*>(piece.sums.data()),
+                piece.sums.size() * sizeof(PixelSums));
+}
+
+bool unpack(const std::vector<char>& bytes, const TileRenderer& tiles, int spp, Piece& piece) {
+  if (bytes.size() < sizeof(PieceHeader)) return false;
+  std::memcpy(&piece.header, bytes.data(), sizeof(PieceHeader));
+  const PieceHeader& h = piece.header;
+  if (h.tile == -1 && bytes.size() == sizeof(PieceHeader)) return true;
+  if (h.tile < 0 || h.tile >= tiles.tiles() || h.pass < 0 || h.pass > spp || h.s0 < 0 || h.s0 > spp) return false;
+  const size_t pixels = size_t(tiles.rect(h.tile).pixels());
+  if (bytes.size() != sizeof(PieceHeader) + pixels * sizeof(PixelSums)) return false;
+  piece.sums.resize(pixels);
+  std::memcpy(static_cast<void*>(piece.sums.data()), bytes.data() + sizeof(PieceHeader), pixels * sizeof(PixelSums));
+  return true;
+}
+
+// Sends that never block: two ranks each in a blocking send of a large message to the other
+// would wait for each other forever. A message's bytes live here until MPI is done with them.
+class Outbox {
+ public:
+  void send(std::vector<char> bytes, int to, int tag) {
+    m_pending.push_back({MPI_REQUEST_NULL, std::move(bytes)});
+    Pending& p = m_pending.back();
+    MPI_Isend(p.bytes.data(), int(p.bytes.size()), MPI_BYTE, to, tag, MPI_COMM_WORLD, &p.request);
+  }
+  // Forgets the messages that are sent.
+  void progress() {
+    for (size_t i = 0; i < m_pending.size();) {
+      int done = 0;
+      MPI_Test(&m_pending[i].request, &done, MPI_STATUS_IGNORE);
+      if (done) {
+        m_pending[i] = std::move(m_pending.back());
+        m_pending.pop_back();
+      } else {
+        ++i;
+      }
+    }
+  }
+  // Waits until every message is sent (the receivers are still receiving).
+  void drain() {
+    for (Pending& p : m_pending) MPI_Wait(&p.request, MPI_STATUS_IGNORE);
+    m_pending.clear();
+  }
+
+ private:
+  struct Pending {
+    MPI_Request request;
+    std::vector<char> bytes;  // moving the vector keeps its buffer where MPI has it
+  };
+  std::vector<Pending> m_pending;
+};
+
+// Receives the message `status` announced, whole.
+std::vector<char> receive(const MPI_Status& status) {
+  int bytes = 0;
+  MPI_Get_count(&status, MPI_BYTE, &bytes);
+  std::vector<char> buffer(size_t(std::max(bytes, 0)));
+  MPI_Recv(buffer.data(), bytes, MPI_BYTE, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  return buffer;
+}
+
+// The main thread waits between polls without spinning: the cores belong to the renderers.
+void idle() { usleep(100); }
+
+void sendCounters(const RayCounters& mine, RayCounters& total, int root) {
+  uint64_t v[6] = {mine.camera, mine.shadow, mine.indirect, mine.traversal.cellsVisited,
+                   mine.traversal.cellsSolved, mine.traversal.rootsRefined};
+  uint64_t s[6] = {};
+  MPI_Reduce(v, s, 6, MPI_UINT64_T, MPI_SUM, root, MPI_COMM_WORLD);
+  total.camera = s[0];
+  total.shadow = s[1];
+  total.indirect = s[2];
+  total.traversal.cellsVisited = s[3];
+  total.traversal.cellsSolved = s[4];
+  total.traversal.rootsRefined = s[5];
+}
+
+}  // namespace
+
+MpiJob::MpiJob() {
+  if (!launchedByMpi()) return;
+  int provided = 0;
+  MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
+  m_initialised = true;
+  MPI_Comm_rank(MPI_COMM_WORLD, &m_rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &m_size);
+}
+
+MpiJob::~MpiJob() {
+  if (!m_initialised) return;
+  if (m_abandoned) MPI_Abort(MPI_COMM_WORLD, 130);
+  MPI_Finalize();
+}
+
+std::string MpiJob::where() const {
+  return distributed() ? "rank " + std::to_string(m_rank) + " of " + std::to_string(m_size) + ": " : "";
+}
+
+std::string MpiJob::firstError(const std::string& mine) const {
+  if (!distributed()) return mine;
+  int failing = mine.empty() ? m_size : m_rank, first = m_size;
+  MPI_Allreduce(&failing, &first, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
+  if (first == m_size) return "";
+  int length = first == m_rank ? int(mine.size()) : 0;
+  MPI_Bcast(&length, 1, MPI_INT, first, MPI_COMM_WORLD);
+  std::string message(size_t(length), '\0');
+  if (first == m_rank) message = mine;
+  MPI_Bcast(message.data(), length, MPI_CHAR, first, MPI_COMM_WORLD);
+  return first == 0 ? message : "rank " + std::to_string(first) + " of " + std::to_string(m_size) + ": " + message;
+}
+
+int MpiJob::sum(int v) const {
+  if (!distributed()) return v;
+  int total = 0;
+  MPI_Allreduce(&v, &total, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
+  return total;
+}
+
+RenderResult MpiJob::combine(const RenderResult& mine, int framesMine, int framesAll) const {
+  if (!distributed()) return mine;
+  RenderResult total;
+  sendCounters(mine.counters, total.counters, 0);
+  // Ranks without a frame count as having every sample (they hold back nothing).
+  int minMax[2] = {framesMine ? -mine.minSamples : std::numeric_limits<int>::min(), mine.maxSamples};
+  int reduced[2] = {};
+  MPI_Reduce(minMax, reduced, 2, MPI_INT, MPI_MAX, 0, MPI_COMM_WORLD);
+  double sums[2] = {mine.meanSamples * framesMine, mine.interrupted ? 1.0 : 0.0}, summed[2] = {};
+  MPI_Reduce(sums, summed, 2, MPI_DOUBLE, MPI_SUM, 0, MPI_COMM_WORLD);
+  double seconds = 0;
+  MPI_Reduce(&mine.seconds, &seconds, 1, MPI_DOUBLE, MPI_MAX, 0, MPI_COMM_WORLD);
+  total.minSamples = -reduced[0];
+  total.maxSamples = reduced[1];
+  total.meanSamples = framesAll > 0 ? summed[0] / framesAll : 0;
+  total.interrupted = summed[1] > 0;
+  total.seconds = seconds;
+  return total;
+}
+
+void MpiJob::abort(int status) const {
+  std::fflush(stdout);
+  std::fflush(stderr);
+  if (m_initialised) MPI_Abort(MPI_COMM_WORLD, status);
+  std::_Exit(status);
+}
+
+RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
+                                    const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
+  const int w = film.width(), h = film.height();
+  const TileRenderer tiles(camera, integrator, options, w, h);
+  const int threads = options.threads > 0 ? options.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+  const int inFlight = threads + 2;  // pieces a rank holds: some waiting beside the busy threads
+  const int size = job.size();
+  const auto start = Clock::now();
+  PieceWorkers workers(tiles, threads);
+  RenderResult result;
+
+  if (job.rank() == 0) {
+    // Pieces go out pass by pass, as renderFrame renders (so a stopped render has every pixel
+    // sampled alike): pending[p] holds the tiles whose pass p is next; a tile comes back before
+    // its next passes go out.
+    std::vector<PixelSums> sums(size_t(w) * h);
+    std::vector<std::deque<int>> pending(1);
+    std::vector<int> passOf(size_t(tiles.tiles()), 0), startOf(size_t(tiles.tiles()), 0);
+    for (int t = 0; t < tiles.tiles(); ++t) pending[0].push_back(t);
+    std::vector<int> piecesOf(size_t(size), 0);
+    std::vector<double> busyOf(size_t(size), 0.0);
+    int out = 0, localHeld = 0, doneRanks = 0;
+    uint64_t samplesDone = 0;
+    const double samplesAll = double(w) * h * options.spp;
+    auto take = [&](Piece& piece) {
+      for (std::deque<int>& tilesOfPass : pending) {
+        if (tilesOfPass.empty()) continue;
+        const int t = tilesOfPass.front();
+        tilesOfPass.pop_front();
+        const TileRenderer::Rect r = tiles.rect(t);
+        piece.header = {};
+        piece.header.tile = t;
+        piece.header.pass = passOf[size_t(t)];
+        piece.header.s0 = startOf[size_t(t)];
+        piece.sums.resize(size_t(r.pixels()));
+        for (int y = r.y0; y < r.y1; ++y)
+          std::copy_n(sums.begin() + ptrdiff_t(size_t(y) * w + r.x0), r.x1 - r.x0,
+                      piece.sums.begin() + ptrdiff_t(size_t(y - r.y0) * (r.x1 - r.x0)));
+        ++out;
+        return true;
+      }
+      return false;
+    };
+    auto store = [&](const Piece& piece, int from) {
+      const int t = piece.header.tile;
+      const TileRenderer::Rect r = tiles.rect(t);
+      for (int y = r.y0; y < r.y1; ++y)
+        for (int x = r.x0; x < r.x1; ++x) {
+          PixelSums& p = sums[size_t(y) * w + x];
+          const PixelSums& q = piece.sums[size_t(y - r.y0) * (r.x1 - r.x0) + size_t(x - r.x0)];
+          samplesDone += uint64_t((q.converged ? options.spp : q.samples) - (p.converged ? options.spp : p.samples));
+          p = q;
+        }
+      --out;
+      ++piecesOf[size_t(from)];
+      busyOf[size_t(from)] += piece.header.busySeconds;
+      startOf[size_t(t)] = piece.header.s0;
+      const int pass = passOf[size_t(t)] = piece.header.pass;
+      if (piece.header.open) {
+        if (pending.size() <= size_t(pass)) pending.resize(size_t(pass) + 1);
+        pending[size_t(pass)].push_back(t);
+      }
+    };
+    std::deque<int> waiting;  // ranks that asked for a piece and have no answer yet
+    Outbox outbox;
+    std::vector<char> bytes;
+    double lastPrint = -1, stoppedAt = -1;
+    bool printed = false;
+    for (;;) {
+      bool busy = false;
+      const bool stop = stopRequested();
+      if (stop && stoppedAt < 0) stoppedAt = since(start);
+      for (Piece piece; !stop && localHeld < inFlight && take(piece); ++localHeld) workers.push(std::move(piece));
+      for (Piece piece; workers.pop(piece); busy = true) {
+        store(piece, 0);
+        --localHeld;
+      }
+      int flag = 0;
+      MPI_Status status;
+      MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, &status);
+      if (flag) {
+        busy = true;
+        const int from = status.MPI_SOURCE;
+        bytes = receive(status);
+        if (status.MPI_TAG == kRequest) {
+          waiting.push_back(from);
+        } else if (status.MPI_TAG == kResult) {
+          Piece piece;
+          if (!unpack(bytes, tiles, options.spp, piece) || piece.header.tile < 0) {
+            std::fprintf(stderr, "isotrace: rank %d sent a malformed piece (%zu bytes)\n", from, bytes.size());
+            job.abort(1);
+          }
+          store(piece, from);
+        } else if (status.MPI_TAG == kDone) {
+          ++doneRanks;
+        } else {
+          std::fprintf(stderr, "isotrace: rank %d sent an unknown message (tag %d)\n", from, status.MPI_TAG);
+          job.abort(1);
+        }
+      }
+      // A rank that asks while every remaining tile is out waits for the next pass of one;
+      // "no more" (tile -1) only once all is done, or after a stop.
+      for (Piece piece; !waiting.empty() && !stop && take(piece); waiting.pop_front(), busy = true) {
+        pack(piece, bytes);
+        outbox.send(std::move(bytes), waiting.front(), kPiece);
+      }
+      const bool allOut = std::all_of(pending.begin(), pending.end(), [](const std::deque<int>& d) { return d.empty(); });
+      for (; !waiting.empty() && (stop || (allOut && out == 0)); waiting.pop_front()) {
+        pack(Piece{}, bytes);
+        outbox.send(std::move(bytes), waiting.front(), kPiece);
+      }
+      outbox.progress();
+      if (options.progress) {
+        const double elapsed = since(start);
+        if (elapsed - lastPrint >= 0.25) {
+          lastPrint = elapsed;
+          const double fraction = std::min(1.0, double(samplesDone) / std::max(1.0, samplesAll));
+          const int bar = int(fraction * 30);
+          std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%  elapsed %.0fs, %d ranks ", bar, "==============================",
+                       30 - bar, "", fraction * 100, elapsed, size);
+          std::fflush(stderr);
+          printed = true;
+        }
+      }
+      // The end: every rank said it is done, and no piece is out (after a stop: none is handed out).
+      if (localHeld == 0 && doneRanks == size - 1 && out == 0) break;
+      // After a stop the others get half a second to send what they have (mpirun kills its
+      // ranks a second after it forwards the signal); the image is written with what came.
+      if (stop && localHeld == 0 && since(start) - stoppedAt > 0.5) {
+        std::fprintf(stderr, "\nisotrace: stopped waiting for %d rank(s) after the stop request\n", size - 1 - doneRanks);
+        job.abandon();
+        break;
+      }
+      if (!busy) idle();
+    }
+    if (printed) std::fprintf(stderr, "\n");
+    if (doneRanks == size - 1) outbox.drain();
+    result.counters = workers.join();
+    result.seconds = since(start);
+    if (figures) *figures = {piecesOf, busyOf};
+    if (doneRanks == size - 1) {
+      RayCounters total;
+      sendCounters(result.counters, total, 0);
+      result.counters = total;
+    }
+    resolveFrame(sums, options, film, direct, result);
+    return result;
+  }
+
+  // Every other rank: keeps up to `inFlight` pieces asked for or in hand, returns each.
+  int asked = 0, held = 0;
+  bool noMore = false;
+  Outbox outbox;
+  std::vector<char> bytes;
+  for (;;) {
+    bool busy = false;
+    const bool stop = stopRequested();
+    for (; !noMore && !stop && asked + held < inFlight; ++asked) outbox.send({}, 0, kRequest);
+    int flag = 0;
+    MPI_Status status;
+    MPI_Iprobe(0, kPiece, MPI_COMM_WORLD, &flag, &status);
+    if (flag) {
+      busy = true;
+      bytes = receive(status);
+      --asked;
+      Piece piece;
+      if (!unpack(bytes, tiles, options.spp, piece)) {
+        std::fprintf(stderr, "isotrace: %srank 0 sent a malformed piece (%zu bytes)\n", job.where().c_str(), bytes.size());
+        job.abort(1);
+      }
+      if (piece.header.tile < 0) {
+        noMore = true;
+      } else {
+        workers.push(std::move(piece));
+        ++held;
+      }
+    }
+    for (Piece piece; workers.pop(piece); busy = true) {
+      pack(piece, bytes);
+      outbox.send(std::move(bytes), 0, kResult);
+      --held;
+    }
+    outbox.progress();
+    if (held == 0 && asked == 0 && (noMore || stop)) break;
+    if (!busy) idle();
+  }
+  outbox.send({}, 0, kDone);
+  outbox.drain();
+  result.counters = workers.join();
+  result.seconds = since(start);
+  RayCounters unused;
+  sendCounters(result.counters, unused, 0);
+  return result;
+}
+
+}  // namespace iso

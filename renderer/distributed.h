@@ -1,0 +1,63 @@
+#pragma once
+// Rendering on many processes with MPI: `mpirun -np N isotrace render ...` runs the same
+// binary on every rank. Each rank loads the scene itself (volumes are read-only; every rank
+// holds a whole copy). One frame: rank 0 hands out whole tiles (all passes of a tile, so a
+// pixel's sums are the single-process sums, in the same order) to every rank including itself,
+// as they ask, and gathers them; only rank 0 writes the image. A sequence (--frames): frame f
+// goes to rank f mod N, which writes it. Started without an MPI launcher, nothing here touches
+// MPI and the render is the single-process one. The scene and the integrators know nothing
+// of this layer.
+#include <string>
+#include <vector>
+
+#include "renderer/render.h"
+
+namespace iso {
+
+// This process's place in an MPI job, or a job of one.
+class MpiJob {
+ public:
+  // Joins the job when an MPI launcher started this process (Open MPI's OMPI_COMM_WORLD_SIZE,
+  // or PMI_SIZE / PMIX_RANK of other launchers); otherwise MPI is never initialised.
+  MpiJob();
+  ~MpiJob();
+  MpiJob(const MpiJob&) = delete;
+  MpiJob& operator=(const MpiJob&) = delete;
+
+  int rank() const { return m_rank; }
+  int size() const { return m_size; }
+  bool distributed() const { return m_size > 1; }
+  // "rank R of N: " under MPI, "" otherwise: the prefix of a message only some ranks may see.
+  std::string where() const;
+
+  // Collective: every rank says what went wrong on it ("" if nothing); every rank gets the
+  // message of the lowest rank that failed, prefixed with where() when that is not rank 0.
+  std::string firstError(const std::string& mine) const;
+  // Collective: the sum of `v` over all ranks, on every rank.
+  int sum(int v) const;
+  // Collective: the frames' figures of all ranks summed (counters, samples) on rank 0.
+  RenderResult combine(const RenderResult& mine, int framesMine, int framesAll) const;
+  // Ends the whole job now (a rank that cannot go on; the others would wait for it forever).
+  [[noreturn]] void abort(int status) const;
+  // Set by a rank 0 that stopped waiting for the others (after a stop request): the job is
+  // aborted instead of finalised when this object goes.
+  void abandon() { m_abandoned = true; }
+
+ private:
+  int m_rank = 0, m_size = 1;
+  bool m_initialised = false, m_abandoned = false;
+};
+
+// Per rank: tiles rendered and seconds its threads spent rendering them (rank 0's figures).
+struct RankFigures {
+  std::vector<int> tiles;
+  std::vector<double> busySeconds;
+};
+
+// One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image
+// and the result has the ray counters of all ranks; other ranks' films stay empty. Bit for bit
+// the image of renderFrame, whatever the ranks and threads.
+RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
+                                    const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
+
+}  // namespace iso
