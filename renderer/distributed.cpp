@@ -2,6 +2,7 @@
 
 #include <mpi.h>
 #include <tbb/concurrent_queue.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -249,7 +250,8 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
   const int w = film.width(), h = film.height();
   const TileRenderer tiles(camera, integrator, options, w, h);
-  const int threads = options.threads > 0 ? options.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+  // As many threads as the rank may use cores (TBB reads the affinity mask mpirun binds it to).
+  const int threads = options.threads > 0 ? options.threads : std::max(1, tbb::this_task_arena::max_concurrency());
   const int inFlight = threads + 2;  // pieces a rank holds: some waiting beside the busy threads
   const int size = job.size();
   const auto start = Clock::now();

@@ -20,6 +20,8 @@ namespace iso {
 namespace {
 
 namespace fs = std::filesystem;
+using test::mixedScene;
+using test::readExr;
 using test::runIsotrace;
 
 // Bad input: exit status 2, exactly one line on stderr that contains `fragment` (which
@@ -325,31 +327,6 @@ TEST(Cli, IsoOutsideTheValuesWarnsAndNoCameraFramesTheScene) {
     }
   EXPECT_EQ(centreHits, 25);
   EXPECT_EQ(borderHits, 0);
-}
-
-// A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky.
-std::string mixedScene() {
-  return R"({"camera": {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]}, "film": {"width": 32, "height": 24},
-    "meshes": [{"shape": "quad", "transform": {"scale": 3}, "material": "floor"}],
-    "volumes": [{"procedural": {"field": "sphere", "resolution": [24, 24, 24]}, "transform": {"translate": [0, 1, 0]},
-                 "isosurfaces": [{"value": 0.6, "inside": "below", "material": "ball"}]}],
-    "materials": {"floor": {"type": "diffuse", "color": 0.7}, "ball": {"type": "metallic_roughness", "color": [0.8, 0.3, 0.2]}},
-    "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}]})";
-}
-
-std::vector<float> readExr(const std::string& path, std::vector<std::string>* channels = nullptr,
-                           std::map<std::string, std::string>* metadata = nullptr) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) return {};
-  const OIIO::ImageSpec& spec = in->spec();
-  std::vector<float> data(size_t(spec.width) * spec.height * spec.nchannels);
-  in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data());
-  if (channels) *channels = spec.channelnames;
-  if (metadata)
-    for (const char* key : {"isotrace:spp", "isotrace:interrupted", "isotrace:integrator", "isotrace:spp_mean",
-                            "isotrace:spp_max", "isotrace:clamp"})
-      if (spec.find_attribute(key)) (*metadata)[key] = spec.get_string_attribute(key);
-  return data;
 }
 
 // Frame sequences: every frame is the picture a single render of that frame's scene gives, bit

@@ -3,8 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <map>
 #include <random>
 #include <string>
+#include <vector>
 
 namespace iso::test {
 
@@ -18,6 +20,15 @@ struct CommandResult {
 
 // Runs `isotrace <args>` through the shell, capturing stdout and stderr.
 CommandResult runIsotrace(const std::string& args);
+// Runs a shell command line, capturing stdout and stderr.
+CommandResult runCommand(const std::string& command);
+
+// A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky (32x24).
+std::string mixedScene();
+// An image's pixels as float (empty if it cannot be read), its channel names and isotrace's
+// metadata (isotrace:spp, :interrupted, :integrator, :spp_mean, :spp_max, :clamp).
+std::vector<float> readExr(const std::string& path, std::vector<std::string>* channels = nullptr,
+                           std::map<std::string, std::string>* metadata = nullptr);
 
 // A scratch directory unique to the current test, emptied first.
 std::string scratchDir();

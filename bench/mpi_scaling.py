@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""One process against N MPI ranks, the same render, interleaved.
+
+For each scene, renders with one process (--threads T) and with `mpirun -np N` (--threads T
+per rank), alternating, --runs times; prints the median render seconds of each, the speed-up,
+pieces per second and the balance (busiest over idlest rank's busy seconds, from --stats),
+and checks that both images are the same bits.
+
+Usage: bench/mpi_scaling.py [--runs 3] [--ranks 2] [--threads 1] [--resolution 960x540]
+       [--spp 16] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
+"""
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ISOTRACE = os.path.join(ROOT, "build", "isotrace")
+
+
+def render(prefix, scene, args, image, stats):
+    cmd = prefix + [ISOTRACE, "render", scene, "-o", image, "--quiet", "--stats", stats] + args
+    r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if r.returncode != 0:
+        sys.exit("mpi_scaling: %s failed:\n%s" % (" ".join(cmd), r.stderr))
+    with open(stats) as f:
+        return json.load(f)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("scenes", nargs="*")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--ranks", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--resolution", default="960x540")
+    parser.add_argument("--spp", type=int, default=16)
+    a = parser.parse_args()
+    scenes = a.scenes or [os.path.join(ROOT, "bench", "scenes", "gyroid_ball.json")]
+    mpirun = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(a.ranks)]
+    args = ["--resolution", a.resolution, "--spp", str(a.spp), "--threads", str(a.threads), "--seed", "7"]
+    print("| scene | 1 process s | %d ranks s | speed-up | pieces/s | balance | same image |" % a.ranks)
+    print("|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as work:
+        for scene in scenes:
+            one, many, pieces, balance = [], [], [], []
+            same = True
+            for _ in range(a.runs):
+                s1 = render([], scene, args, os.path.join(work, "one.exr"), os.path.join(work, "one.json"))
+                sn = render(mpirun, scene, args, os.path.join(work, "many.exr"), os.path.join(work, "many.json"))
+                same = same and s1["rays"] == sn["rays"] and pixels_equal(work)
+                one.append(s1["seconds"]["render"])
+                many.append(sn["seconds"]["render"])
+                pieces.append(sum(sn["tiles_per_rank"]) / sn["seconds"]["render"])
+                balance.append(sn["balance"])
+            m1, mn = statistics.median(one), statistics.median(many)
+            print("| %s | %.3f | %.3f | **%.2f** | %.0f | %.3f | %s |" % (
+                os.path.splitext(os.path.basename(scene))[0], m1, mn, m1 / mn, statistics.median(pieces),
+                statistics.median(balance), "yes" if same else "NO"))
+            print("  runs: 1 process %s; %d ranks %s" % (", ".join("%.3f" % x for x in one), a.ranks,
+                                                       ", ".join("%.3f" % x for x in many)), file=sys.stderr)
+
+
+def pixels_equal(work):
+    """The EXR files can differ in bytes the writer does not control; compare their pixels."""
+    r = subprocess.run(["oiiotool", os.path.join(work, "one.exr"), os.path.join(work, "many.exr"), "--diff"],
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return r.returncode == 0 and "PASS" in r.stdout
+
+
+if __name__ == "__main__":
+    main()

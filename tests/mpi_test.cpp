@@ -1,0 +1,158 @@
+// `mpirun -np N isotrace render ...` (renderer/distributed.cpp): the image and the ray counts of
+// any number of ranks are those of one process, bit for bit; a rank that fails ends the run.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+#include "tests/test_util.h"
+
+namespace iso {
+namespace {
+
+namespace fs = std::filesystem;
+using test::readExr;
+using test::runCommand;
+using test::runIsotrace;
+
+// mpirun with N ranks of isotrace (as root too, more ranks than cores allowed), bounded in time
+// so that a hang fails the test instead of the suite.
+std::string mpirun(int ranks) {
+  return "timeout 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe -np " +
+         std::to_string(ranks) + " ";
+}
+
+nlohmann::json readJson(const std::string& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in, nullptr, false);
+}
+
+// A scene with 9 tiles of different cost (an iso-surface ball, a floor, sky) and paths that
+// bounce, with every layer a pixel accumulates.
+std::string pathScene() {
+  std::string scene = test::mixedScene();
+  scene.replace(scene.find("\"width\": 32, \"height\": 24"), 25, "\"width\": 40, \"height\": 36");
+  return scene;
+}
+
+void expectSameRays(const nlohmann::json& a, const nlohmann::json& b) {
+  EXPECT_EQ(a["rays"], b["rays"]);
+  EXPECT_EQ(a["counters"], b["counters"]);
+}
+
+TEST(Mpi, RanksRenderTheSingleProcessImageBitForBit) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  for (const std::string& flags : {std::string("--integrator path --spp 20 --aov albedo,normal,depth,variance,samples"),
+                                   std::string("--integrator path --spp 48 --adaptive 0.2 --aov samples")}) {
+    const auto one = runIsotrace("render " + dir + "/s.json " + flags + " --threads 1 --quiet -o " + dir +
+                                 "/one.exr --stats " + dir + "/one.json");
+    ASSERT_EQ(one.status, 0) << one.err;
+    const std::vector<float> reference = readExr(dir + "/one.exr");
+    ASSERT_FALSE(reference.empty());
+    for (const auto& [ranks, threads] : std::vector<std::pair<int, int>>{{2, 1}, {3, 2}}) {
+      const std::string name = dir + "/n" + std::to_string(ranks);
+      const auto r = runCommand(mpirun(ranks) + ISOTRACE_BINARY + " render " + dir + "/s.json " + flags +
+                                " --threads " + std::to_string(threads) + " --quiet -o " + name + ".exr --stats " +
+                                name + ".json");
+      ASSERT_EQ(r.status, 0) << flags << "\n" << r.err;
+      EXPECT_EQ(r.out, name + ".exr\n") << "only rank 0 writes the image";
+      EXPECT_EQ(readExr(name + ".exr"), reference) << flags << ", " << ranks << " ranks";
+      const nlohmann::json stats = readJson(name + ".json"), single = readJson(dir + "/one.json");
+      expectSameRays(stats, single);
+      EXPECT_EQ(stats["ranks"], ranks);
+      EXPECT_EQ(stats["spp"], single["spp"]);
+      EXPECT_EQ(stats["spp_mean"], single["spp_mean"]);
+      // Every rank took pieces, and every tile went out at least once (9 tiles).
+      int pieces = 0;
+      for (const auto& n : stats["tiles_per_rank"]) {
+        EXPECT_GT(n.get<int>(), 0) << stats.dump();
+        pieces += n.get<int>();
+      }
+      EXPECT_GE(pieces, 9);
+    }
+  }
+}
+
+TEST(Mpi, CompareAndSequencesMatchOneProcess) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  // compare: the direct, global and indirect images.
+  ASSERT_EQ(runIsotrace("render " + dir + "/s.json --integrator compare --spp 6 --quiet -o " + dir + "/one.exr").status, 0);
+  const auto c = runCommand(mpirun(2) + ISOTRACE_BINARY + " render " + dir +
+                            "/s.json --integrator compare --spp 6 --threads 1 --quiet -o " + dir + "/two.exr");
+  ASSERT_EQ(c.status, 0) << c.err;
+  for (const char* part : {"direct", "global", "indirect"})
+    EXPECT_EQ(readExr(dir + "/two." + part + ".exr"), readExr(dir + "/one." + part + ".exr")) << part;
+
+  // A sequence: whole frames go to ranks (frame f to rank f mod N), each the single render's.
+  const std::string seq = " --frames 3 --orbit 60 --spp 3 --quiet --stats ";
+  ASSERT_EQ(runIsotrace("render " + dir + "/s.json -o " + dir + "/f1.exr" + seq + dir + "/f1.json").status, 0);
+  const auto f = runCommand(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --threads 1 -o " + dir + "/f2.exr" +
+                            seq + dir + "/f2.json");
+  ASSERT_EQ(f.status, 0) << f.err;
+  for (const char* frame : {"0000", "0001", "0002"}) {
+    const std::vector<float> a = readExr(dir + "/f1." + frame + ".exr");
+    ASSERT_FALSE(a.empty()) << frame;
+    EXPECT_EQ(readExr(dir + "/f2." + frame + ".exr"), a) << frame;
+  }
+  const nlohmann::json one = readJson(dir + "/f1.json"), two = readJson(dir + "/f2.json");
+  expectSameRays(one, two);
+  EXPECT_EQ(two["frames"], 3);
+  EXPECT_EQ(two["spp"], 3);
+}
+
+// Bad input seen by one rank only (MPMD: rank 1 gets another scene): one line from rank 0
+// naming that rank and the file, status 2, no image, no hang. A rank that crashes ends the run
+// too (mpirun kills the others), with no image left behind.
+TEST(Mpi, ARankThatFailsEndsTheRun) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/good.json", pathScene());
+  test::writeText(dir + "/bad.json", "{\"camera\": {\"fov\": 500}}");
+  const std::string image = dir + "/out.png";
+  const std::string common = " render --quiet -o " + image;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto r = runCommand(mpirun(1) + ISOTRACE_BINARY + common + " --spp 4 " + dir + "/good.json : -np 1 " +
+                            ISOTRACE_BINARY + common + " --spp 4 " + dir + "/bad.json");
+  EXPECT_EQ(r.status, 2) << r.err;
+  const std::string expected = "isotrace: rank 1 of 2: " + dir + "/bad.json: /camera/fov";
+  EXPECT_NE(r.err.find(expected), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("isotrace:", r.err.find(expected) + 1), std::string::npos) << "one line from isotrace: " << r.err;
+  EXPECT_FALSE(fs::exists(image));
+
+  const auto crash = runCommand(mpirun(1) + ISOTRACE_BINARY + common + " --spp 100000 " + dir + "/good.json : -np 1 " +
+                                "bash -c 'sleep 1; kill -SEGV $$'");
+  EXPECT_NE(crash.status, 0) << crash.err;
+  EXPECT_NE(crash.err.find("rank 1"), std::string::npos) << crash.err;
+  EXPECT_FALSE(fs::exists(image));
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 100) << "no hang";
+}
+
+// SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
+// writes the image of the samples gathered so far, every pixel sampled (pieces go out pass
+// by pass), marked interrupted.
+TEST(Mpi, InterruptWritesThePartialImage) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  const std::string image = dir + "/t.exr";
+  const std::string cmd = mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path --spp 1000000 " +
+                          "--threads 1 --quiet -o " + image + " >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep 4; "
+                          "kill -INT $pid; wait $pid";
+  EXPECT_NE(runCommand("bash -c '" + cmd + "'").status, 0) << "mpirun ends with an error status after a signal";
+  std::map<std::string, std::string> metadata;
+  const std::vector<float> pixels = readExr(image, nullptr, &metadata);
+  ASSERT_FALSE(pixels.empty());
+  EXPECT_EQ(metadata["isotrace:interrupted"], "1");
+  EXPECT_GE(std::stoi(metadata["isotrace:spp"]), 1) << "every pixel has samples";
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+}
+
+}  // namespace
+}  // namespace iso
