@@ -24,6 +24,7 @@
 #include "bench/watertight.h"
 #include "renderer/distributed.h"
 #include "renderer/render.h"
+#include "renderer/view.h"
 #include "scene/gltf.h"
 #include "volume/iso_mesh.h"
 #include "volume/input_error.h"
@@ -61,6 +62,18 @@ DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
 constexpr long long kMaxFilmPixels = 1LL << 25;
 constexpr int kMaxFilmSide = 16384;
 
+// --resolution WIDTHxHEIGHT, each side 1 to kMaxFilmSide.
+void parseResolution(const std::string& text, int& width, int& height) {
+  std::smatch m;
+  static const std::regex wxh(R"((\d{1,5})x(\d{1,5}))");
+  if (!std::regex_match(text, m, wxh) || std::stoi(m[1]) < 1 || std::stoi(m[2]) < 1)
+    throw InputError("--resolution", "", "expected WIDTHxHEIGHT, e.g. 640x480, got '" + text + "'");
+  width = std::stoi(m[1]);
+  height = std::stoi(m[2]);
+  if (width > kMaxFilmSide || height > kMaxFilmSide)
+    throw InputError("--resolution", "", "each side must be at most " + std::to_string(kMaxFilmSide) + " pixels");
+}
+
 // Flags override the scene file; each is checked here so that a bad one is an InputError.
 void applyFlags(const RenderFlags& f, SceneDesc& scene) {
   RenderSettings& s = scene.settings;
@@ -75,16 +88,7 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
     if (!parseIntersector(f.intersector, s.intersector, error))
       throw InputError("--intersector", "", error);
   }
-  if (!f.resolution.empty()) {
-    std::smatch m;
-    static const std::regex wxh(R"((\d{1,5})x(\d{1,5}))");
-    if (!std::regex_match(f.resolution, m, wxh) || std::stoi(m[1]) < 1 || std::stoi(m[2]) < 1)
-      throw InputError("--resolution", "", "expected WIDTHxHEIGHT, e.g. 640x480, got '" + f.resolution + "'");
-    s.width = std::stoi(m[1]);
-    s.height = std::stoi(m[2]);
-    if (s.width > kMaxFilmSide || s.height > kMaxFilmSide)
-      throw InputError("--resolution", "", "each side must be at most " + std::to_string(kMaxFilmSide) + " pixels");
-  }
+  if (!f.resolution.empty()) parseResolution(f.resolution, s.width, s.height);
   // The film costs ~170 bytes per pixel while rendering (the sums of every layer, in double).
   if (double(s.width) * s.height > double(kMaxFilmPixels) && !f.allowLarge)
     throw InputError(f.resolution.empty() ? scene.path : "--resolution", f.resolution.empty() ? "/film" : "",
@@ -880,10 +884,10 @@ int runCommandLine(int argc, char** argv) {
   app.require_subcommand(1);
   app.set_version_flag("--version", versionText(), "print the version of isotrace and of its libraries");
   // A first word that is no command and no option: say so, with the commands.
-  const char* commands[] = {"render", "info", "watertight", "bench", "mesh"};
+  const char* commands[] = {"render", "view", "info", "watertight", "bench", "mesh"};
   if (argc >= 2 && argv[1][0] != '-' &&
       std::none_of(std::begin(commands), std::end(commands), [&](const char* c) { return std::strcmp(argv[1], c) == 0; })) {
-    std::fprintf(stderr, "isotrace: unknown command '%s' (commands: render, info, watertight, bench, mesh; see isotrace --help)\n", argv[1]);
+    std::fprintf(stderr, "isotrace: unknown command '%s' (commands: render, view, info, watertight, bench, mesh; see isotrace --help)\n", argv[1]);
     return 2;
   }
   RenderFlags flags;
@@ -911,6 +915,14 @@ int runCommandLine(int argc, char** argv) {
       ->check(CLI::Range(1, 100000));
   renderCmd->add_option("--iso-sweep", flags.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
   renderCmd->add_option("--orbit", flags.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");
+  std::string viewScene, viewResolution;
+  ViewOptions viewOptions;
+  CLI::App* viewCmd = app.add_subcommand("view", "explore a scene live in the browser: iso values, colours, integrator, camera");
+  viewCmd->add_option("scene", viewScene, "scene file (JSON)")->required();
+  viewCmd->add_option("--port", viewOptions.port, "port to listen on (default 8765; 0: any free port)")->check(CLI::Range(0, 65535));
+  viewCmd->add_option("--host", viewOptions.host, "address to listen on (default 127.0.0.1: this machine only)");
+  viewCmd->add_option("--resolution", viewResolution, "image size WIDTHxHEIGHT (default 480 wide, the scene's aspect)");
+  viewCmd->add_option("--threads", viewOptions.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   std::string infoScene;
   CLI::App* infoCmd = app.add_subcommand("info", "what the scene holds and what will be built");
   infoCmd->add_option("scene", infoScene, "scene file (JSON)")->required();
@@ -937,7 +949,7 @@ int runCommandLine(int argc, char** argv) {
   meshCmd->add_option("-o,--output", meshFlags.output, "output mesh, .glb or .gltf")->required();
   meshCmd->add_option("--volume", meshFlags.volume, "volume index in the scene, from 0 (default 0)");
   meshCmd->add_option("--surface", meshFlags.surface, "iso-surface index in that volume, from 0 (default 0)");
-  for (CLI::App* sub : {renderCmd, infoCmd, watertightCmd, benchCmd, meshCmd}) sub->allow_extras();
+  for (CLI::App* sub : {renderCmd, viewCmd, infoCmd, watertightCmd, benchCmd, meshCmd}) sub->allow_extras();
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -962,6 +974,14 @@ int runCommandLine(int argc, char** argv) {
   }
   try {
     if (*renderCmd) return render(flags);
+    if (*viewCmd) {
+      if (!viewResolution.empty()) {
+        parseResolution(viewResolution, viewOptions.width, viewOptions.height);
+        if (double(viewOptions.width) * viewOptions.height > double(1 << 22))
+          throw InputError("--resolution", "", "a live view holds at most 2^22 pixels (e.g. 2048x2048)");
+      }
+      return runView(viewScene, viewOptions);
+    }
     if (*infoCmd) return info(infoScene);
     if (*watertightCmd) return watertight(check);
     if (*benchCmd) return bench(benchFlags);

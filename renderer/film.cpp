@@ -77,6 +77,26 @@ double Film::meanLuminance() const {
   return m_pixels.empty() ? 0 : sum / m_pixels.size();
 }
 
+namespace {
+
+// One channel as shown: signed data mapped from [-1, 1], radiance tone mapped, then sRGB.
+uint8_t displayByte(float v, bool signedData, float scale, Tonemap tonemap) {
+  const float shown = signedData ? std::clamp(0.5f * v + 0.5f, 0.f, 1.f) : linearToSrgb(applyTonemap(v * scale, tonemap));
+  return uint8_t(std::lround(shown * 255));
+}
+
+}  // namespace
+
+std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const DisplaySettings& display) {
+  std::vector<uint8_t> bytes(size_t(film.width()) * film.height() * 3);
+  const float scale = float(std::exp2(display.exposure));
+  for (int y = 0; y < film.height(); ++y)
+    for (int x = 0; x < film.width(); ++x)
+      for (int c = 0; c < 3; ++c)
+        bytes[(size_t(y) * film.width() + x) * 3 + c] = displayByte(film.at(x, y)[c], signedData, scale, display.tonemap);
+  return bytes;
+}
+
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata, const DisplaySettings& display) {
   const ImageFormat format = imageFormatFor(path);
@@ -126,9 +146,7 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         const float a = alpha ? film.alpha()[pixel] : 1.f;
         for (int c = 0; c < 3; ++c) {
           const float v = film.at(x, y)[c] / (a > 0 ? a : 1.f);
-          const float shown = signedData ? std::clamp(0.5f * v + 0.5f, 0.f, 1.f)
-                                         : linearToSrgb(applyTonemap(v * scale, display.tonemap));
-          bytes[pixel * channels + c] = uint8_t(std::lround(shown * 255));
+          bytes[pixel * channels + c] = displayByte(v, signedData, scale, display.tonemap);
         }
         if (alpha) bytes[pixel * channels + 3] = uint8_t(std::lround(std::clamp(a, 0.f, 1.f) * 255));
       }

@@ -1,6 +1,7 @@
 #pragma once
 // The image being rendered (linear RGB, float), its extra layers (AOVs), and how it reaches
 // disk.
+#include <cstdint>
 #include <deque>
 #include <map>
 #include <string>
@@ -63,6 +64,9 @@ float applyTonemap(float v, Tonemap tonemap);
 
 // The format an output name asks for; InputError for anything else.
 ImageFormat imageFormatFor(const std::string& path);
+
+// The main layer as 8-bit sRGB, 3 bytes per pixel, row by row: what PNG and JPEG show.
+std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const DisplaySettings& display = {});
 
 // EXR: linear float as rendered, with every extra layer, and an "A" channel when the film has
 // coverage (premultiplied, OpenEXR's convention). PNG and JPEG: 8-bit sRGB of the main layer

@@ -1,0 +1,208 @@
+#pragma once
+// The one page of `isotrace view` (renderer/view.cpp), compiled into the binary: nothing is
+// fetched from anywhere else. Controls: one range input (class "iso") and one colour input per
+// iso-surface, the integrator (#integrator), Save (#save); the image (#view) takes orbit
+// (drag), pan (shift-drag or right-drag) and zoom (wheel). Frames come as server-sent events.
+
+namespace iso {
+
+inline constexpr const char* kViewPage = R"HTML(<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<title>isotrace view</title>
+<link rel="icon" href="data:,">
+<style>
+  body { font: 14px system-ui, sans-serif; margin: 0; background: #1e1f22; color: #ddd; display: flex; }
+  #panel { width: 280px; padding: 12px; box-sizing: border-box; }
+  #stage { flex: 1; padding: 12px; }
+  #view { display: block; max-width: 100%; image-rendering: auto; cursor: grab; background: #000; user-select: none; }
+  label { display: block; margin-top: 10px; }
+  .surface { margin-bottom: 14px; border-top: 1px solid #444; padding-top: 8px; }
+  .iso { width: 100%; }
+  .figures { margin-top: 8px; color: #aaa; font-variant-numeric: tabular-nums; }
+  button, select { font: inherit; }
+  #saved { color: #9c9; word-break: break-all; margin-top: 6px; }
+  #error { color: #e88; }
+</style>
+</head>
+<body>
+<div id="panel">
+  <div><b>isotrace view</b> <span id="scene"></span></div>
+  <label>integrator <select id="integrator"></select></label>
+  <div id="surfaces"></div>
+  <div class="figures">spp <span id="spp">0</span> / <span id="target">0</span> ·
+    <span id="mrays">0</span> Mrays/s · <span id="seconds">0</span> s</div>
+  <div><button id="save">Save</button></div>
+  <div id="saved"></div>
+  <div id="error"></div>
+  <p style="color:#888">drag: orbit · shift-drag or right-drag: pan · wheel: zoom</p>
+</div>
+<div id="stage"><img id="view" alt="the rendered image" draggable="false"></div>
+<script>
+"use strict";
+let state = null;
+const $ = (id) => document.getElementById(id);
+
+// One request in flight per kind; the newest change waits for it and replaces older ones.
+const pending = new Map();
+const busy = new Set();
+function send(kind, change) {
+  pending.set(kind, change);
+  if (!busy.has(kind)) flush(kind);
+}
+function flush(kind) {
+  if (!pending.has(kind)) return;
+  const change = pending.get(kind);
+  pending.delete(kind);
+  busy.add(kind);
+  fetch("/api/state", {method: "POST", headers: {"Content-Type": "application/json"}, body: JSON.stringify(change)})
+    .then((r) => r.json().then((body) => {
+      if (!r.ok) { $("error").textContent = body.error || ("HTTP " + r.status); return; }
+      $("error").textContent = "";
+      state = body;
+    }))
+    .catch((e) => { $("error").textContent = String(e); })
+    .finally(() => { busy.delete(kind); flush(kind); });
+}
+
+function showState(s) {
+  state = s;
+  $("scene").textContent = s.scene.split("/").pop();
+  const select = $("integrator");
+  if (select.options.length === 0)
+    for (const name of s.integrators) select.add(new Option(name, name));
+  select.value = s.integrator;
+  $("target").textContent = s.spp_target;
+  const box = $("surfaces");
+  if (box.children.length !== s.surfaces.length) {
+    box.textContent = "";
+    for (const f of s.surfaces) {
+      const div = document.createElement("div");
+      div.className = "surface";
+      const label = document.createElement("label");
+      const name = document.createElement("span");
+      name.textContent = f.label + " = ";
+      const value = document.createElement("span");
+      value.className = "value";
+      label.append(name, value);
+      const range = document.createElement("input");
+      range.type = "range";
+      range.className = "iso";
+      range.min = f.min;
+      range.max = f.max;
+      range.step = f.max > f.min ? (f.max - f.min) / 10000 : 1;
+      range.dataset.surface = f.index;
+      range.setAttribute("aria-label", "iso value of " + f.label);
+      range.addEventListener("input", () => {
+        value.textContent = Number(range.value).toPrecision(5);
+        send("iso" + f.index, {surface: f.index, value: Number(range.value)});
+      });
+      const colour = document.createElement("input");
+      colour.type = "color";
+      colour.className = "color";
+      colour.dataset.surface = f.index;
+      colour.addEventListener("input", () => send("color" + f.index, {surface: f.index, color: colour.value}));
+      div.append(label, range, colour);
+      box.append(div);
+    }
+  }
+  s.surfaces.forEach((f, i) => {
+    const div = box.children[i];
+    const range = div.querySelector(".iso");
+    if (document.activeElement !== range) {
+      range.value = f.value;
+      div.querySelector(".value").textContent = Number(f.value).toPrecision(5);
+    }
+    div.querySelector(".color").value = f.color;
+  });
+  $("error").textContent = s.error || "";
+}
+
+function loadState() {
+  return fetch("/api/state").then((r) => r.json()).then(showState);
+}
+
+$("integrator").addEventListener("change", () => send("integrator", {integrator: $("integrator").value}));
+$("save").addEventListener("click", () => {
+  $("saved").textContent = "saving…";
+  fetch("/api/save", {method: "POST"}).then((r) => r.json().then((body) => {
+    $("saved").textContent = r.ok ? "saved " + body.files.join(", ") : "";
+    if (!r.ok) $("error").textContent = body.error;
+  })).catch((e) => { $("error").textContent = String(e); });
+});
+
+// Camera: orbit about the look-at point, pan both, zoom along the view direction.
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+const mul = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const norm = (a) => mul(a, 1 / Math.hypot(a[0], a[1], a[2]));
+function rotate(v, axis, angle) {  // Rodrigues
+  const k = norm(axis), c = Math.cos(angle), s = Math.sin(angle);
+  return add(add(mul(v, c), mul(cross(k, v), s)), mul(k, dot(k, v) * (1 - c)));
+}
+function moveCamera(dx, dy, pan) {
+  if (!state) return;
+  const c = state.camera;
+  let pos = c.position, at = c.look_at;
+  const up = norm(c.up);
+  const back = sub(pos, at);
+  const dist = Math.hypot(back[0], back[1], back[2]);
+  const right = norm(cross(mul(back, -1), up));
+  if (pan) {
+    const scale = dist * Math.tan(c.fov * Math.PI / 360) * 2 / $("view").clientHeight;
+    const shift = add(mul(right, -dx * scale), mul(norm(cross(right, mul(back, -1))), dy * scale));
+    pos = add(pos, shift);
+    at = add(at, shift);
+  } else {
+    let b = rotate(back, up, -dx * 0.01);
+    const b2 = rotate(b, right, -dy * 0.01);
+    if (Math.abs(dot(norm(b2), up)) < 0.99) b = b2;  // not over the pole
+    pos = add(at, b);
+  }
+  state.camera = {position: pos, look_at: at, up: c.up, fov: c.fov};
+  send("camera", {camera: state.camera});
+}
+const view = $("view");
+let drag = null;
+view.addEventListener("contextmenu", (e) => e.preventDefault());
+view.addEventListener("mousedown", (e) => { drag = {x: e.clientX, y: e.clientY, pan: e.shiftKey || e.button === 2}; e.preventDefault(); });
+window.addEventListener("mouseup", () => { drag = null; });
+window.addEventListener("mousemove", (e) => {
+  if (!drag) return;
+  moveCamera(e.clientX - drag.x, e.clientY - drag.y, drag.pan);
+  drag.x = e.clientX;
+  drag.y = e.clientY;
+});
+view.addEventListener("wheel", (e) => {
+  e.preventDefault();
+  if (!state) return;
+  const c = state.camera;
+  const back = sub(c.position, c.look_at);
+  const f = Math.exp(Math.sign(e.deltaY) * 0.1);
+  state.camera = {position: add(c.look_at, mul(back, f)), look_at: c.look_at, up: c.up, fov: c.fov};
+  send("camera", {camera: state.camera});
+}, {passive: false});
+
+loadState().then(() => {
+  const events = new EventSource("/api/events");
+  events.addEventListener("frame", (e) => {
+    const f = JSON.parse(e.data);
+    view.src = f.image;
+    $("spp").textContent = f.spp;
+    $("target").textContent = f.spp_target;
+    $("mrays").textContent = f.mrays.toFixed(2);
+    $("seconds").textContent = f.seconds.toFixed(2);
+    view.dataset.version = f.version;
+    // Another tab changed something: take its state.
+    if (!state || f.version !== state.version) loadState();
+  });
+});
+</script>
+</body>
+</html>
+)HTML";
+
+}  // namespace iso
