@@ -5,7 +5,10 @@
 # libopenvdb-dev (with libboost-iostreams-dev, which its CMake module needs) builds
 # `isotrace mesh` (OpenVDB's volumeToMesh). libnifti2-dev reads NIfTI headers; python3-nibabel
 # is there for its test files (real NIfTI-1/2 volumes the tests read), python3-pydicom for its
-# DICOM test files; libgdcm-dev reads DICOM, libtinyobjloader-dev OBJ meshes.
+# DICOM test files; libgdcm-dev reads DICOM, libtinyobjloader-dev OBJ meshes; Open MPI
+# (libopenmpi-dev, openmpi-bin: mpirun) renders on many ranks; libcpp-httplib-dev serves
+# `isotrace view`, whose page the tests drive in Debian's chromium with chromium-driver and
+# python3-selenium (no browser is downloaded).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -15,7 +18,7 @@ packages=(build-essential cmake pkg-config
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev
           libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
-          libopenmpi-dev openmpi-bin)
+          libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -22,7 +22,7 @@ using test::runIsotrace;
 // mpirun with N ranks of isotrace (as root too, more ranks than cores allowed), bounded in time
 // so that a hang fails the test instead of the suite.
 std::string mpirun(int ranks) {
-  return "timeout 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe -np " +
+  return "timeout 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe --mca btl_vader_single_copy_mechanism none -np " +
          std::to_string(ranks) + " ";
 }
 

@@ -1,0 +1,218 @@
+// `isotrace view`'s server (renderer/view.cpp) through its HTTP API: the page, the state, bad
+// requests refused without a change, frames over server-sent events, Save that `isotrace
+// render` reproduces, a dropped connection, stopping. The page itself is driven in Chromium by
+// tests/view_browser.py.
+#include <gtest/gtest.h>
+#include <httplib.h>
+
+#include <chrono>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "renderer/view.h"
+#include "tests/test_util.h"
+
+namespace iso {
+namespace {
+
+namespace fs = std::filesystem;
+using Json = nlohmann::json;
+
+// The server of a scene on a free port, serving from its own thread while the test runs.
+struct Running {
+  ViewServer server;
+  int port;
+  std::thread thread;
+  Running(const std::string& scene, int width, int height)
+      : server(scene, [&] {
+          ViewOptions o;
+          o.port = 0;
+          o.width = width;
+          o.height = height;
+          o.threads = 2;
+          return o;
+        }()),
+        port(server.bind()), thread([this] { server.serve(); }) {}
+  ~Running() {
+    server.stop();
+    thread.join();
+  }
+};
+
+Json state(httplib::Client& c) {
+  auto r = c.Get("/api/state");
+  EXPECT_TRUE(r);
+  return r ? Json::parse(r->body) : Json();
+}
+
+// Reads the event stream until a frame of `version` with at least `spp` samples comes; its data.
+Json frameOf(int port, uint64_t version, int spp) {
+  httplib::Client c("127.0.0.1", port);
+  c.set_read_timeout(30, 0);
+  std::string buffer;
+  Json found;
+  c.Get("/api/events", [&](const char* data, size_t n) {
+    buffer.append(data, n);
+    for (size_t end; (end = buffer.find("\n\n")) != std::string::npos; buffer.erase(0, end + 2)) {
+      const std::string event = buffer.substr(0, end);
+      const size_t at = event.find("data: ");
+      if (event.rfind("event: frame", 0) != 0 || at == std::string::npos) continue;
+      const Json f = Json::parse(event.substr(at + 6));
+      if (f["version"] == version && f["spp"].get<int>() >= spp) {
+        found = f;
+        return false;  // enough: drop the connection
+      }
+    }
+    return true;
+  });
+  return found;
+}
+
+TEST(View, ServesItsPageStateAndFramesOnly) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  Running view(dir + "/s.json", 48, 36);
+  httplib::Client c("127.0.0.1", view.port);
+  auto page = c.Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  for (const char* part : {"id=\"view\"", "id=\"spp\"", "id=\"integrator\"", "\"iso\"", "EventSource"})
+    EXPECT_NE(page->body.find(part), std::string::npos) << part;
+  EXPECT_EQ(page->body.find("http://"), std::string::npos) << "the page fetches nothing from elsewhere";
+  // Never a file named by a request.
+  for (const char* path : {"/s.json", "/../s.json", "/etc/passwd", "/api/../s.json", "/api/x", "/%2e%2e/s.json"}) {
+    auto r = c.Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 404) << path;
+  }
+  const Json s = state(c);
+  ASSERT_EQ(s["surfaces"].size(), 1u);
+  EXPECT_EQ(s["surfaces"][0]["value"], 0.6);
+  EXPECT_LT(s["surfaces"][0]["min"].get<double>(), 0.6);
+  EXPECT_GT(s["surfaces"][0]["max"].get<double>(), 0.6);
+  EXPECT_EQ(s["width"], 48);
+  const Json first = frameOf(view.port, s["version"], 1);
+  ASSERT_FALSE(first.is_null());
+  EXPECT_EQ(first["image"].get<std::string>().rfind("data:image/jpeg;base64,", 0), 0u);
+  auto jpeg = c.Get("/api/frame.jpg");
+  ASSERT_TRUE(jpeg);
+  EXPECT_EQ(jpeg->get_header_value("Content-Type"), "image/jpeg");
+  EXPECT_EQ(jpeg->body.substr(0, 2), std::string("\xff\xd8", 2));
+}
+
+TEST(View, BadRequestsAre400AndChangeNothing) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  Running view(dir + "/s.json", 32, 24);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json before = state(c);
+  const std::string deep = std::string(100, '[') + std::string(100, ']');
+  for (const auto& [body, message] : std::vector<std::pair<std::string, std::string>>{
+           {"{", "expected a JSON object"},
+           {"[1]", "expected a JSON object"},
+           {deep, "nested"},
+           {R"({"bogus": 1})", "/bogus: unknown key"},
+           {R"({"surface": 1, "value": 0.5})", "no iso-surface 1 (the scene has 1)"},
+           {R"({"surface": -1, "value": 0.5})", "no iso-surface -1"},
+           {R"({"surface": 0.5, "value": 0.5})", "/surface: expected the index"},
+           {R"({"value": 0.5})", "/surface: expected the index"},
+           {R"({"surface": 0, "value": 1e9})", "/value: iso value out of the volume's range"},
+           {R"({"surface": 0, "value": "x"})", "/value: expected a number"},
+           {R"({"surface": 0, "color": "red"})", "/color: expected a colour"},
+           {R"({"surface": 0})", "a surface goes with a value or a color"},
+           {R"({"integrator": "fancy"})", "/integrator: expected one of"},
+           {R"({"camera": {"position": [0, 1, 0], "look_at": [0, 1, 0]}})", "camera looks at its own position"},
+           {R"({"camera": {"fov": 500}})", "/camera/fov"},
+           {R"({"camera": {"position": [0, "a", 0]}})", "/camera/position"},
+           {R"({"camera": {"zoom": 2}})", "/camera/zoom: unknown key"}}) {
+    auto r = c.Post("/api/state", body, "application/json");
+    ASSERT_TRUE(r) << body;
+    EXPECT_EQ(r->status, 400) << body << ": " << r->body;
+    const Json error = Json::parse(r->body, nullptr, false);
+    ASSERT_TRUE(error.is_object()) << r->body;
+    EXPECT_NE(error.value("error", "").find(message), std::string::npos) << body << ": " << r->body;
+  }
+  EXPECT_EQ(state(c), before) << "nothing changed";
+  // A request larger than any change is refused before it is read.
+  auto big = c.Post("/api/state", std::string(1 << 20, ' '), "application/json");
+  ASSERT_TRUE(big);
+  EXPECT_EQ(big->status, 413);
+}
+
+TEST(View, ChangesReachTheFramesAndSaveRendersTheSamePicture) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  Running view(dir + "/s.json", 40, 30);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json before = state(c);
+  const Json firstFrame = frameOf(view.port, before["version"], 1);
+  ASSERT_FALSE(firstFrame.is_null());
+  auto changed = c.Post("/api/state", R"({"surface": 0, "value": 0.3, "color": "#20c040", "integrator": "path"})",
+                        "application/json");
+  ASSERT_TRUE(changed);
+  ASSERT_EQ(changed->status, 200) << changed->body;
+  const Json after = Json::parse(changed->body);
+  EXPECT_EQ(after["version"], before["version"].get<uint64_t>() + 1);
+  EXPECT_EQ(after["surfaces"][0]["value"], 0.3);
+  EXPECT_EQ(after["surfaces"][0]["color"], "#20c040");
+  EXPECT_EQ(after["integrator"], "path");
+  // A camera change leaves what it does not name.
+  auto moved = c.Post("/api/state", R"({"camera": {"position": [0, 2, 5]}})", "application/json");
+  ASSERT_TRUE(moved);
+  ASSERT_EQ(moved->status, 200) << moved->body;
+  const Json now = Json::parse(moved->body);
+  EXPECT_EQ(now["camera"]["position"], Json::array({0, 2, 5}));
+  EXPECT_EQ(now["camera"]["look_at"], before["camera"]["look_at"]);
+  // The scene's spp (4) is reached, then Save.
+  const Json done = frameOf(view.port, now["version"], 4);
+  ASSERT_FALSE(done.is_null());
+  EXPECT_NE(done["image"], firstFrame["image"]);
+  auto saved = c.Post("/api/save", "", "application/json");
+  ASSERT_TRUE(saved);
+  ASSERT_EQ(saved->status, 200) << saved->body;
+  const Json files = Json::parse(saved->body)["files"];
+  ASSERT_EQ(files.size(), 3u);
+  EXPECT_EQ(files[0], dir + "/s.view-1.json");
+  EXPECT_EQ(files[1], dir + "/s.view-1.exr");
+  for (const auto& f : files) EXPECT_TRUE(fs::exists(f.get<std::string>())) << f;
+  const auto r = test::runIsotrace("render " + dir + "/s.view-1.json -o " + dir + "/batch.exr --quiet");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::vector<float> batch = test::readExr(dir + "/batch.exr");
+  ASSERT_FALSE(batch.empty());
+  EXPECT_EQ(batch, test::readExr(dir + "/s.view-1.exr")) << "Save reproduces the picture";
+  // A second save never overwrites the first.
+  auto again = c.Post("/api/save", "", "application/json");
+  ASSERT_TRUE(again);
+  EXPECT_EQ(Json::parse(again->body)["files"][0], dir + "/s.view-2.json");
+}
+
+TEST(View, SurvivesDroppedConnectionsAndStopsPromptly) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  auto view = std::make_unique<Running>(dir + "/s.json", 32, 24);
+  // Event streams dropped at once, and one dropped mid-stream.
+  for (int i = 0; i < 5; ++i) {
+    httplib::Client c("127.0.0.1", view->port);
+    c.set_read_timeout(0, 200000);
+    c.Get("/api/events", [](const char*, size_t) { return false; });
+  }
+  httplib::Client c("127.0.0.1", view->port);
+  auto r = c.Get("/api/state");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  // An open event stream does not hold the server up: stop within a second.
+  std::thread listener([port = view->port] {
+    httplib::Client l("127.0.0.1", port);
+    l.set_read_timeout(10, 0);
+    l.Get("/api/events", [](const char*, size_t) { return true; });
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const auto t0 = std::chrono::steady_clock::now();
+  view.reset();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 1.0);
+  listener.join();
+}
+
+}  // namespace
+}  // namespace iso
