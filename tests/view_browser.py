@@ -1,0 +1,131 @@
+#!/usr/bin/python3
+"""`isotrace view` in a real browser: Debian's chromium, headless, driven by chromium-driver
+through python3-selenium (Debian's python, which has selenium).
+
+Checks: the page loads with no console errors; the image appears and refines (spp rises to
+the scene's); moving an iso slider changes the surface and the image; the integrator switch
+works; Save writes files that `isotrace render` turns into the same picture.
+Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
+"""
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import Select, WebDriverWait
+
+SCENE = {
+    "camera": {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]},
+    "film": {"width": 320, "height": 240},
+    "integrator": {"type": "direct", "spp": 64},
+    "meshes": [{"shape": "quad", "transform": {"scale": 3}, "material": "floor"}],
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [32, 32, 32]}, "transform": {"translate": [0, 1, 0]},
+                 "isosurfaces": [{"value": 0.6, "inside": "below", "material": "ball"}]}],
+    "materials": {"floor": {"type": "diffuse", "color": 0.7}, "ball": {"type": "diffuse", "color": [0.8, 0.3, 0.2]}},
+    "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}],
+}
+
+
+def fail(message):
+    print("view_browser: FAIL: " + message, file=sys.stderr)
+    sys.exit(1)
+
+
+def main():
+    binary = sys.argv[1]
+    screenshot = sys.argv[sys.argv.index("--screenshot") + 1] if "--screenshot" in sys.argv else None
+    work = tempfile.mkdtemp(prefix="isotrace_view_")
+    scene = os.path.join(work, "ball.json")
+    with open(scene, "w") as f:
+        json.dump(SCENE, f)
+    server = subprocess.Popen([binary, "view", scene, "--port", "0", "--resolution", "320x240"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    driver = None
+    try:
+        url = server.stdout.readline().strip()
+        if not re.match(r"^http://127\.0\.0\.1:\d+/$", url):
+            fail("first line of stdout is not the URL: %r" % url)
+        options = webdriver.ChromeOptions()
+        options.binary_location = "/usr/bin/chromium"
+        for flag in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1000,700"):
+            options.add_argument(flag)
+        options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+        driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+        wait = WebDriverWait(driver, 60, poll_frequency=0.02)
+        driver.get(url)
+
+        def spp():
+            text = driver.find_element(By.ID, "spp").text
+            return int(text) if text.isdigit() else -1
+
+        # The image appears and refines up to the scene's spp.
+        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src").startswith("data:image/jpeg"))
+        seen = set()
+        wait.until(lambda d: seen.add(spp()) or spp() >= 64)
+        if len([s for s in seen if s > 0]) < 2:
+            fail("the image did not refine in steps: saw spp %s" % sorted(seen))
+        first = driver.find_element(By.ID, "view").get_attribute("src")
+
+        # An iso slider: the value moves, the image changes, the server has the new value.
+        sliders = driver.find_elements(By.CSS_SELECTOR, "input[type=range].iso")
+        if len(sliders) != 1:
+            fail("expected one iso slider, found %d" % len(sliders))
+        driver.execute_script(
+            "const r = arguments[0]; r.value = 0.35; r.dispatchEvent(new Event('input', {bubbles: true}));", sliders[0])
+        # (the slider snaps to its steps: 0.35 to within one)
+        wait.until(lambda d: abs(d.execute_script(
+            "return fetch('/api/state').then(r => r.json()).then(s => s.surfaces[0].value)") - 0.35) < 1e-3)
+        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src") != first and spp() >= 64)
+        after_slider = driver.find_element(By.ID, "view").get_attribute("src")
+
+        # The integrator switch.
+        Select(driver.find_element(By.ID, "integrator")).select_by_value("normals")
+        wait.until(lambda d: d.execute_script(
+            "return fetch('/api/state').then(r => r.json()).then(s => s.integrator)") == "normals")
+        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src") != after_slider and spp() >= 64)
+
+        if screenshot:
+            Select(driver.find_element(By.ID, "integrator")).select_by_value("direct")
+            time.sleep(0.3)
+            wait.until(lambda d: spp() >= 64)
+            driver.save_screenshot(screenshot)
+
+        # Save: the scene and the images; `isotrace render` of the scene gives the same picture.
+        driver.find_element(By.ID, "save").click()
+        wait.until(lambda d: d.find_element(By.ID, "saved").text.startswith("saved "))
+        files = driver.find_element(By.ID, "saved").text[len("saved "):].split(", ")
+        saved_json = next(f for f in files if f.endswith(".json"))
+        saved_exr = next(f for f in files if f.endswith(".exr"))
+        rendered = os.path.join(work, "batch.exr")
+        r = subprocess.run([binary, "render", saved_json, "-o", rendered, "--quiet"], capture_output=True, text=True)
+        if r.returncode != 0:
+            fail("isotrace render of the saved scene: " + r.stderr)
+        diff = subprocess.run(["oiiotool", rendered, saved_exr, "--diff"], capture_output=True, text=True)
+        if diff.returncode != 0 or "PASS" not in diff.stdout:
+            fail("the saved scene renders another picture:\n" + diff.stdout)
+
+        errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
+        if errors:
+            fail("console errors: %s" % errors)
+        print("view_browser: ok (page, refinement to %d spp, slider, integrator, save)" % spp())
+    finally:
+        if driver:
+            driver.quit()
+        server.send_signal(2)
+        try:
+            server.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            fail("the server did not stop on SIGINT within 5 s")
+        if server.returncode != 0:
+            fail("the server exited with %d: %s" % (server.returncode, server.stderr.read()))
+
+
+if __name__ == "__main__":
+    main()
