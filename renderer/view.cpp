@@ -84,6 +84,13 @@ std::string jpeg(const std::vector<uint8_t>& rgb, int w, int h) {
 
 Json vec(const Vec3d& v) { return Json::array({v.x, v.y, v.z}); }
 
+Film indirectOf(const Film& global, const Film& direct) {
+  Film indirect(global.width(), global.height());
+  for (int y = 0; y < global.height(); ++y)
+    for (int x = 0; x < global.width(); ++x) indirect.at(x, y) = global.at(x, y) - direct.at(x, y);
+  return indirect;
+}
+
 }  // namespace
 
 // The scene being explored: its JSON (the source of truth: every change patches it and is
@@ -112,15 +119,27 @@ class ViewSession {
   struct Frame {
     uint64_t serial = 0, version = 0;
     int spp = 0;
-    std::string event;  // the server-sent event of this frame
+    bool preview = false;  // a quick look at half resolution: shown, never saved
+    std::string event;     // the server-sent event of this frame
     std::string jpeg;
-    std::unique_ptr<Film> film, direct;
+    int shownWidth = 0;    // of the JPEG (compare: three images side by side)
+    std::shared_ptr<Film> film, direct;
     bool signedData = false;
-    Json doc;           // the scene this frame shows
+    Json doc;              // the scene this frame shows
     CameraDesc camera;
   };
 
   void run();
+  // Samples [s0, s1) of every pixel into `sums`; false if a newer version than `version`
+  // (or quitting) cancelled it.
+  bool renderPassOver(tbb::task_arena& arena, const Camera& camera, const Integrator& integrator,
+                      const RenderOptions& options, int w, int h, int s0, int s1, std::vector<PixelSums>& sums,
+                      uint64_t& rays, uint64_t version);
+  Frame makeFrame(const std::vector<PixelSums>& sums, int w, int h, const RenderOptions& options,
+                  const Integrator& integrator);
+  // Makes `frame` the one shown (and, unless a preview, the one Save writes), if `version` is
+  // still the current one.
+  void publish(Frame frame, uint64_t version, int spp, int target, Clock::time_point changedAt, double mrays);
   // The patched scene document, checked by the parser (InputError otherwise).
   SceneDesc parse(const Json& doc) const;
   Vec3d colourOf(const Surface& s) const;
@@ -129,7 +148,7 @@ class ViewSession {
   // latest frame resolved it). Under m_mutex.
   CameraDesc cameraShown() const {
     const bool explicitCamera = m_desc.camera.gltfCamera.empty() && !m_desc.camera.frameScene;
-    return explicitCamera || !m_frame.film ? m_desc.camera : m_frame.camera;
+    return explicitCamera || !m_saveable.film ? m_desc.camera : m_saveable.camera;
   }
 
   std::string m_path;
@@ -145,7 +164,8 @@ class ViewSession {
   bool m_rebuild = false;  // the constructor's World is the first one
   Clock::time_point m_changedAt = Clock::now();
   std::string m_error;
-  Frame m_frame;
+  Frame m_frame;     // the latest frame shown
+  Frame m_saveable;  // the latest full-resolution frame
   std::atomic<bool> m_quit{false};
   std::unique_ptr<World> m_firstWorld;  // built by the constructor, taken by the render thread
   std::thread m_thread;
@@ -332,6 +352,7 @@ void ViewSession::run() {
   uint64_t rays = 0;
   double renderSeconds = 0;
   Clock::time_point changedAt;
+  bool preview = false;
   tbb::task_arena arena(m_options.threads > 0 ? m_options.threads : tbb::task_arena::automatic);
   for (;;) {
     bool changed = false, rebuild = false;
@@ -377,79 +398,111 @@ void ViewSession::run() {
       s0 = 0;
       rays = 0;
       renderSeconds = 0;
+      preview = true;
+    }
+    // Right after a change, a preview: one sample per pixel at half the width and height
+    // (a quarter of the work), shown stretched; then the full passes.
+    if (preview) {
+      preview = false;
+      if (m_width >= 64 && m_height >= 48) {
+        const int pw = m_width / 2, ph = m_height / 2;
+        const Camera small(cameraDesc, pw, ph);
+        std::vector<PixelSums> previewSums(size_t(pw) * ph);
+        uint64_t previewRays = 0;
+        if (!renderPassOver(arena, small, *integrator, options, pw, ph, 0, 1, previewSums, previewRays, built)) continue;
+        Frame frame = makeFrame(previewSums, pw, ph, options, *integrator);
+        frame.preview = true;
+        publish(std::move(frame), built, 0, options.spp, changedAt, 0);
+        continue;
+      }
     }
     // One pass over all tiles; a newer version cancels it at the next tile.
-    const TileRenderer tiles(*camera, *integrator, options, m_width, m_height);
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp);
-    tbb::enumerable_thread_specific<RayCounters> counters;
-    std::atomic<bool> cancelled{false};
     const auto passStart = Clock::now();
-    arena.execute([&] {
-      tbb::parallel_for(0, tiles.tiles(), [&](int t) {
-        if (cancelled || m_quit || m_version != built) {
-          cancelled = true;
-          return;
-        }
-        const TileRenderer::Rect r = tiles.rect(t);
-        tiles.renderPass(t, s0, s1, &sums[size_t(r.y0) * m_width + r.x0], size_t(m_width), counters.local());
-      });
-    });
-    if (cancelled) continue;  // the new version starts from scratch
+    if (!renderPassOver(arena, *camera, *integrator, options, m_width, m_height, s0, s1, sums, rays, built)) continue;
     renderSeconds += std::chrono::duration<double>(Clock::now() - passStart).count();
-    for (const RayCounters& c : counters) rays += c.camera + c.shadow + c.indirect;
     ++pass;
     s0 = s1;
-
-    // The frame: the films for Save, a JPEG for the page (compare: direct, global, indirect
-    // side by side).
-    Frame frame;
-    frame.film = std::make_unique<Film>(m_width, m_height);
-    if (integrator->splitsDirect()) frame.direct = std::make_unique<Film>(m_width, m_height);
-    RenderResult result;
-    resolveFrame(sums, options, *frame.film, frame.direct.get(), result);
-    frame.signedData = integrator->signedOutput();
-    std::vector<uint8_t> rgb = displayRgb(*frame.film, frame.signedData);
-    int shownWidth = m_width;
-    if (frame.direct) {
-      Film indirect(m_width, m_height);
-      for (int y = 0; y < m_height; ++y)
-        for (int x = 0; x < m_width; ++x) indirect.at(x, y) = frame.film->at(x, y) - frame.direct->at(x, y);
-      const std::vector<uint8_t> parts[3] = {displayRgb(*frame.direct, false), rgb, displayRgb(indirect, false)};
-      shownWidth = 3 * m_width;
-      rgb.assign(size_t(shownWidth) * m_height * 3, 0);
-      for (int y = 0; y < m_height; ++y)
-        for (int p = 0; p < 3; ++p)
-          std::copy_n(parts[p].begin() + ptrdiff_t(size_t(y) * m_width * 3), size_t(m_width) * 3,
-                      rgb.begin() + ptrdiff_t((size_t(y) * shownWidth + size_t(p) * m_width) * 3));
-    }
-    frame.jpeg = jpeg(rgb, shownWidth, m_height);
-    frame.version = built;
-    frame.spp = s1;
+    Frame frame = makeFrame(sums, m_width, m_height, options, *integrator);
     frame.doc = doc;
     frame.camera = cameraDesc;
-    Json event = {{"version", built},
-                  {"spp", s1},
-                  {"spp_target", options.spp},
-                  {"seconds", std::chrono::duration<double>(Clock::now() - changedAt).count()},
-                  {"mrays", renderSeconds > 0 ? double(rays) / renderSeconds * 1e-6 : 0.0},
-                  {"width", shownWidth},
-                  {"height", m_height},
-                  {"image", "data:image/jpeg;base64," + base64(frame.jpeg)}};
-    {
-      std::lock_guard<std::mutex> lock(m_mutex);
-      if (m_version != built) continue;  // a change came in meanwhile: no stale frame
-      frame.serial = m_frame.serial + 1;
-      frame.event = "event: frame\ndata: " + event.dump() + "\n\n";
-      m_frame = std::move(frame);
-    }
-    m_framed.notify_all();
+    publish(std::move(frame), built, s1, options.spp, changedAt, renderSeconds > 0 ? double(rays) / renderSeconds * 1e-6 : 0);
   }
+}
+
+bool ViewSession::renderPassOver(tbb::task_arena& arena, const Camera& camera, const Integrator& integrator,
+                                 const RenderOptions& options, int w, int h, int s0, int s1,
+                                 std::vector<PixelSums>& sums, uint64_t& rays, uint64_t version) {
+  const TileRenderer tiles(camera, integrator, options, w, h);
+  tbb::enumerable_thread_specific<RayCounters> counters;
+  std::atomic<bool> cancelled{false};
+  arena.execute([&] {
+    tbb::parallel_for(0, tiles.tiles(), [&](int t) {
+      if (cancelled || m_quit || m_version != version) {
+        cancelled = true;
+        return;
+      }
+      const TileRenderer::Rect r = tiles.rect(t);
+      tiles.renderPass(t, s0, s1, &sums[size_t(r.y0) * w + r.x0], size_t(w), counters.local());
+    });
+  });
+  for (const RayCounters& c : counters) rays += c.camera + c.shadow + c.indirect;
+  return !cancelled;
+}
+
+ViewSession::Frame ViewSession::makeFrame(const std::vector<PixelSums>& sums, int w, int h, const RenderOptions& options,
+                                          const Integrator& integrator) {
+  Frame frame;
+  frame.film = std::make_shared<Film>(w, h);
+  if (integrator.splitsDirect()) frame.direct = std::make_shared<Film>(w, h);
+  RenderResult result;
+  resolveFrame(sums, options, *frame.film, frame.direct.get(), result);
+  frame.signedData = integrator.signedOutput();
+  std::vector<uint8_t> rgb = displayRgb(*frame.film, frame.signedData);
+  int shownWidth = w;
+  if (frame.direct) {
+    // compare: direct, global and indirect side by side.
+    const std::vector<uint8_t> parts[3] = {displayRgb(*frame.direct, false), rgb,
+                                           displayRgb(indirectOf(*frame.film, *frame.direct), false)};
+    shownWidth = 3 * w;
+    rgb.assign(size_t(shownWidth) * h * 3, 0);
+    for (int y = 0; y < h; ++y)
+      for (int p = 0; p < 3; ++p)
+        std::copy_n(parts[p].begin() + ptrdiff_t(size_t(y) * w * 3), size_t(w) * 3,
+                    rgb.begin() + ptrdiff_t((size_t(y) * shownWidth + size_t(p) * w) * 3));
+  }
+  frame.jpeg = jpeg(rgb, shownWidth, h);
+  frame.shownWidth = shownWidth;
+  return frame;
+}
+
+void ViewSession::publish(Frame frame, uint64_t version, int spp, int target, Clock::time_point changedAt, double mrays) {
+  const Json event = {{"version", version},
+                      {"spp", spp},
+                      {"spp_target", target},
+                      {"preview", frame.preview},
+                      {"seconds", std::chrono::duration<double>(Clock::now() - changedAt).count()},
+                      {"mrays", mrays},
+                      {"display_width", (frame.direct ? 3 : 1) * m_width},  // a preview is shown stretched
+                      {"display_height", m_height},
+                      {"image", "data:image/jpeg;base64," + base64(frame.jpeg)}};
+  frame.version = version;
+  frame.spp = spp;
+  {
+    std::lock_guard<std::mutex> lock(m_mutex);
+    if (m_version != version) return;  // a change came in meanwhile: no stale frame
+    frame.serial = m_frame.serial + 1;
+    frame.event = "event: frame\ndata: " + event.dump() + "\n\n";
+    if (!frame.preview) m_saveable = frame;  // the films are shared, not copied
+    m_frame = std::move(frame);
+  }
+  m_framed.notify_all();
 }
 
 Json ViewSession::save() {
   std::unique_lock<std::mutex> lock(m_mutex);
-  if (!m_frame.film) throw InputError("save", "", "no image yet");
-  const Frame& f = m_frame;
+  if (!m_saveable.film) throw InputError("save", "", "no image yet");
+  const Frame& f = m_saveable;
   Json doc = f.doc;
   // What reproduces this picture with `isotrace render`: its size, samples and camera.
   doc["film"] = {{"width", m_width}, {"height", m_height}};
@@ -480,9 +533,7 @@ Json ViewSession::save() {
       written.push_back(path);
     };
     if (f.direct) {
-      Film indirect(m_width, m_height);
-      for (int y = 0; y < m_height; ++y)
-        for (int x = 0; x < m_width; ++x) indirect.at(x, y) = f.film->at(x, y) - f.direct->at(x, y);
+      const Film indirect = indirectOf(*f.film, *f.direct);
       for (const char* ext : {".exr", ".png"}) {
         write(base + ".direct" + ext, *f.direct, false);
         write(base + ".global" + ext, *f.film, false);

@@ -191,6 +191,7 @@ loadState().then(() => {
   events.addEventListener("frame", (e) => {
     const f = JSON.parse(e.data);
     view.src = f.image;
+    view.style.width = f.display_width + "px";
     $("spp").textContent = f.spp;
     $("target").textContent = f.spp_target;
     $("mrays").textContent = f.mrays.toFixed(2);
