@@ -225,7 +225,7 @@ TEST(Cli, HostileFlagsAndScenesAreBadInput) {
   EXPECT_NE(version.out.find("OpenVDB"), std::string::npos) << version.out;
   const auto unknown = runIsotrace("foo");
   EXPECT_EQ(unknown.status, 2);
-  EXPECT_NE(unknown.err.find("unknown command 'foo' (commands: render, info, watertight, bench, mesh"), std::string::npos)
+  EXPECT_NE(unknown.err.find("unknown command 'foo' (commands: render, view, info, watertight, bench, mesh"), std::string::npos)
       << unknown.err;
 }
 
