@@ -646,11 +646,11 @@ void onViewSignal(int) { g_viewStop = 1; }
 }  // namespace
 
 int runView(const std::string& scenePath, const ViewOptions& options) {
+  ViewServer server(scenePath, options);
+  server.bind();
   if (options.host != "127.0.0.1" && options.host != "localhost")
     std::fprintf(stderr, "isotrace: warning: listening on %s: anyone who can reach this machine there can use the viewer\n",
                  options.host.c_str());
-  ViewServer server(scenePath, options);
-  server.bind();
   std::printf("%s\n", server.url().c_str());
   std::fflush(stdout);
   g_viewStop = 0;

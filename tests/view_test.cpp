@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -212,6 +213,33 @@ TEST(View, SurvivesDroppedConnectionsAndStopsPromptly) {
   view.reset();
   EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 1.0);
   listener.join();
+}
+
+}  // namespace
+}  // namespace iso
+
+namespace iso {
+namespace {
+
+// Bad flags and scenes: one line, status 2, nothing listening.
+TEST(View, BadFlagsAndScenesAreBadInput) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  test::writeText(dir + "/bad.json", "{\"camera\": {\"fov\": 500}}");
+  for (const auto& [args, message] : std::vector<std::pair<std::string, std::string>>{
+           {dir + "/missing.json", dir + "/missing.json"},
+           {dir + "/bad.json", "/camera/fov"},
+           {dir + "/s.json --port 70000", "--port"},
+           {dir + "/s.json --resolution 0x5", "--resolution: expected WIDTHxHEIGHT"},
+           {dir + "/s.json --resolution 4000x4000", "at most 2^22 pixels"},
+           {dir + "/s.json --host 999.1.1.1 --port 0", "cannot listen on 999.1.1.1"},
+           {dir + "/s.json --threads -1", "--threads"}}) {
+    const auto r = test::runIsotrace("view " + args);
+    EXPECT_EQ(r.status, 2) << args << ": " << r.err;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+    EXPECT_EQ(r.out, "") << args;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
+  }
 }
 
 }  // namespace
