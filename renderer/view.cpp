@@ -374,8 +374,8 @@ void ViewSession::run() {
       // Everything about the frame starts over; iso values and colours need a new World.
       if (rebuild || !world) {
         try {
-          world.reset();  // the old one's memory goes first
-          world = std::make_unique<World>(desc, desc.settings.intersector);
+          // The volumes stay loaded: a change never alters how they load, only their surfaces.
+          world = std::make_unique<World>(desc, desc.settings.intersector, world.get());
         } catch (const std::exception& e) {
           std::lock_guard<std::mutex> lock(m_mutex);
           m_error = e.what();

@@ -111,7 +111,7 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov) {
   return c;
 }
 
-World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
+World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
   m_camera = scene.camera;
   Material fallback;
   fallback.name = "default";
@@ -122,7 +122,7 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector) {
   rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
   try {
     loadMeshes(scene);
-    buildVolumes(scene, intersector);
+    buildVolumes(scene, intersector, sameVolumes);
     buildLights(scene);
     const auto commitStart = std::chrono::steady_clock::now();
     for (RTCScene sub : m_subScenes) rtcCommitScene(sub);
@@ -372,21 +372,32 @@ void World::loadMeshes(const SceneDesc& scene) {
   }
 }
 
-void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector) {
+void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
   for (size_t v = 0; v < scene.volumes.size(); ++v) {
     const VolumeDesc& desc = scene.volumes[v];
     const auto loadStart = std::chrono::steady_clock::now();
     VolumeInfo info;
-    info.name = desc.field ? "procedural" : desc.file;
-    VolumeFile file = loadVolume(desc);
-    info.grid = std::make_unique<Grid>(std::move(file.grid));
-    info.transform = file.toWorld;
-    info.format = file.format;
-    info.notes = std::move(file.notes);
+    const bool shared = sameVolumes && v < sameVolumes->m_volumes.size();
+    if (shared) {
+      const VolumeInfo& old = sameVolumes->m_volumes[v];
+      info.name = old.name;
+      info.grid = old.grid;
+      info.bricks = old.bricks;
+      info.transform = old.transform;
+      info.format = old.format;
+      info.notes = old.notes;
+    } else {
+      info.name = desc.field ? "procedural" : desc.file;
+      VolumeFile file = loadVolume(desc);
+      info.grid = std::make_shared<const Grid>(std::move(file.grid));
+      info.transform = file.toWorld;
+      info.format = file.format;
+      info.notes = std::move(file.notes);
+    }
     m_loadSeconds += secondsSince(loadStart);
 
     const auto buildStart = std::chrono::steady_clock::now();
-    info.bricks = std::make_unique<BrickGrid>(*info.grid);
+    if (!shared) info.bricks = std::make_shared<const BrickGrid>(*info.grid);
     m_volumes.push_back(std::move(info));
     const VolumeInfo& vol = m_volumes.back();
     const bool instanced = !vol.transform.isIdentity();

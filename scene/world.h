@@ -52,8 +52,8 @@ struct SurfaceInfo {
 
 struct VolumeInfo {
   std::string name;  // file or procedural field
-  std::unique_ptr<Grid> grid;
-  std::unique_ptr<BrickGrid> bricks;
+  std::shared_ptr<const Grid> grid;  // shared with a World built from it (sameVolumes)
+  std::shared_ptr<const BrickGrid> bricks;
   Transform transform;             // grid space -> world: the file's affine, then the scene's
   std::string format;              // the file's format ("procedural" for a built-in field)
   std::vector<std::string> notes;  // what the file said about itself (VolumeFile::notes)
@@ -72,8 +72,11 @@ struct MeshInfo {
 
 class World {
  public:
-  // Loads and builds everything the scene needs for intersector `intersector`.
-  World(const SceneDesc& scene, const IntersectorSpec& intersector);
+  // Loads and builds everything the scene needs for intersector `intersector`. `sameVolumes`:
+  // a World of a scene whose volumes load alike (only their iso-surfaces, materials and the
+  // rest may differ, as in `isotrace view`): its grids and brick ranges are shared instead of
+  // read and built again.
+  World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes = nullptr);
   ~World();
   World(const World&) = delete;
   World& operator=(const World&) = delete;
@@ -133,7 +136,7 @@ class World {
 
   void release();
   void loadMeshes(const SceneDesc& scene);
-  void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector);
+  void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes);
   void buildLights(const SceneDesc& scene);
   void addIsoSurfaceLight(int surface);
   int materialFor(const SceneDesc& scene, const std::string& name);
