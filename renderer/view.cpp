@@ -1,12 +1,11 @@
 #include "renderer/view.h"
 
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
 #include <httplib.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
-#define STB_IMAGE_WRITE_STATIC
-#define STB_IMAGE_WRITE_IMPLEMENTATION
-#include <stb/stb_image_write.h>
 
 #include <atomic>
 #include <chrono>
@@ -74,12 +73,18 @@ std::string base64(const std::string& bytes) {
   return out;
 }
 
+// 8-bit RGB as a JPEG file's bytes (OpenImageIO writing to memory).
 std::string jpeg(const std::vector<uint8_t>& rgb, int w, int h) {
-  std::string out;
-  stbi_write_jpg_to_func(
-      [](void* context, void* data, int size) { static_cast<std::string*>(context)->append(static_cast<char*>(data), size_t(size)); },
-      &out, w, h, 3, rgb.data(), 90);
-  return out;
+  std::vector<unsigned char> bytes;
+  OIIO::Filesystem::IOVecOutput memory(bytes);
+  OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
+  spec.attribute("Compression", "jpeg:90");
+  void* proxy = &memory;
+  spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy);
+  auto out = OIIO::ImageOutput::create("frame.jpg");
+  if (!out || !out->open("frame.jpg", spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb.data()) || !out->close())
+    return {};
+  return std::string(bytes.begin(), bytes.end());
 }
 
 Json vec(const Vec3d& v) { return Json::array({v.x, v.y, v.z}); }
