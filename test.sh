@@ -11,8 +11,6 @@ if [ "${1:-}" = "--sanitize" ]; then
   export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1"
   export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0"
   export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
-  # Open MPI unloads its components at MPI_Finalize; kept loaded, their leaks have names to suppress.
-  export OMPI_MCA_mca_base_component_disable_dlclose=1
   ctest --test-dir build-sanitize --output-on-failure -j2 --timeout 900
   exit
 fi
