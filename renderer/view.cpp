@@ -124,7 +124,7 @@ class ViewSession {
   struct Frame {
     uint64_t serial = 0, version = 0;
     int spp = 0;
-    bool preview = false;  // a quick look at half resolution: shown, never saved
+    bool preview = false;  // a quick look at a fraction of the resolution: shown, never saved
     std::string event;     // the server-sent event of this frame
     std::string jpeg;
     int shownWidth = 0;    // of the JPEG (compare: three images side by side)
@@ -405,12 +405,14 @@ void ViewSession::run() {
       renderSeconds = 0;
       preview = true;
     }
-    // Right after a change, a preview: one sample per pixel at half the width and height
-    // (a quarter of the work), shown stretched; then the full passes.
+    // Right after a change, a preview: one sample per pixel on about 20,000 pixels (480x360:
+    // a third of the width and height, a ninth of the work), shown stretched; then the full
+    // passes.
     if (preview) {
       preview = false;
-      if (m_width >= 64 && m_height >= 48) {
-        const int pw = m_width / 2, ph = m_height / 2;
+      const int scale = std::max(2, int(std::ceil(std::sqrt(double(m_width) * m_height / 20000))));
+      if (m_width >= 32 * scale && m_height >= 24 * scale) {
+        const int pw = m_width / scale, ph = m_height / scale;
         const Camera small(cameraDesc, pw, ph);
         std::vector<PixelSums> previewSums(size_t(pw) * ph);
         uint64_t previewRays = 0;
