@@ -514,7 +514,8 @@ int render(const RenderFlags& flags) {
     // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
     if (world && setup.seq.surface < 0) return;
     if (setup.seq.surface >= 0) setup.seq.iso(setup.scene)->value = setup.seq.isoValue(frame);
-    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector);
+    // A sweep changes iso values only: the volumes stay loaded from the previous frame's World.
+    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector, world.get());
     worldFrame = frame;
     loadSeconds += world->loadSeconds();
     buildSeconds += world->buildSeconds();
