@@ -412,9 +412,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     std::vector<std::string> written;
     if (direct) {
       // global = everything, direct = paths of depth 1, indirect = global - direct.
-      Film indirect(s.width, s.height);
-      for (int y = 0; y < s.height; ++y)
-        for (int x = 0; x < s.width; ++x) indirect.at(x, y) = film.at(x, y) - direct->at(x, y);
+      Film indirect = indirectOf(film, *direct);
       const std::string global = withSuffix(frameOutput, "global");
       direct->alpha() = indirect.alpha() = film.alpha();
       writeImage(withSuffix(frameOutput, "direct"), *direct, false, metadata, display);

@@ -87,6 +87,13 @@ uint8_t displayByte(float v, bool signedData, float scale, Tonemap tonemap) {
 
 }  // namespace
 
+Film indirectOf(const Film& global, const Film& direct) {
+  Film indirect(global.width(), global.height());
+  for (int y = 0; y < global.height(); ++y)
+    for (int x = 0; x < global.width(); ++x) indirect.at(x, y) = global.at(x, y) - direct.at(x, y);
+  return indirect;
+}
+
 std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const DisplaySettings& display) {
   std::vector<uint8_t> bytes(size_t(film.width()) * film.height() * 3);
   const float scale = float(std::exp2(display.exposure));

@@ -65,6 +65,9 @@ float applyTonemap(float v, Tonemap tonemap);
 // The format an output name asks for; InputError for anything else.
 ImageFormat imageFormatFor(const std::string& path);
 
+// global - direct, pixel by pixel (the `compare` integrator's indirect image).
+Film indirectOf(const Film& global, const Film& direct);
+
 // The main layer as 8-bit sRGB, 3 bytes per pixel, row by row: what PNG and JPEG show.
 std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const DisplaySettings& display = {});
 

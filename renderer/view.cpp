@@ -89,12 +89,6 @@ std::string jpeg(const std::vector<uint8_t>& rgb, int w, int h) {
 
 Json vec(const Vec3d& v) { return Json::array({v.x, v.y, v.z}); }
 
-Film indirectOf(const Film& global, const Film& direct) {
-  Film indirect(global.width(), global.height());
-  for (int y = 0; y < global.height(); ++y)
-    for (int x = 0; x < global.width(); ++x) indirect.at(x, y) = global.at(x, y) - direct.at(x, y);
-  return indirect;
-}
 
 }  // namespace
 

@@ -379,13 +379,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     VolumeInfo info;
     const bool shared = sameVolumes && v < sameVolumes->m_volumes.size();
     if (shared) {
-      const VolumeInfo& old = sameVolumes->m_volumes[v];
-      info.name = old.name;
-      info.grid = old.grid;
-      info.bricks = old.bricks;
-      info.transform = old.transform;
-      info.format = old.format;
-      info.notes = old.notes;
+      info = sameVolumes->m_volumes[v];  // the grid and brick ranges are shared, not copied
     } else {
       info.name = desc.field ? "procedural" : desc.file;
       VolumeFile file = loadVolume(desc);
