@@ -148,7 +148,7 @@ TEST(Mpi, InterruptWritesThePartialImage) {
   test::writeText(dir + "/s.json", pathScene());
   const std::string image = dir + "/t.exr";
   const std::string cmd = mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path --spp 1000000 " +
-                          "--threads 1 --quiet -o " + image + " >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep 4; "
+                          "--threads 1 --quiet -o " + image + " >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep 8; "
                           "kill -INT $pid; wait $pid";
   EXPECT_NE(runCommand("bash -c '" + cmd + "'").status, 0) << "mpirun ends with an error status after a signal";
   std::map<std::string, std::string> metadata;
