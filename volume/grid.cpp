@@ -180,6 +180,28 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
     }
     return g;
   }
+  if (interior) {
+    // The common case written out per axis (the same arithmetic in the same order as the loop
+    // below, so the same bits): constant strides, no branch per sample.
+    visitSamples([&](const auto* v) {
+      const size_t base = index(c.x, c.y, c.z);
+      const size_t sx = 1, sy = size_t(stride[1]), sz = size_t(stride[2]);
+      auto along = [&](size_t sa, size_t sb, size_t sd, const float* wa, const float* wb, const float* wd) {
+        float sum = 0;
+        for (size_t j = 0; j < 2; ++j)
+          for (size_t k = 0; k < 2; ++k) {
+            const size_t row = base + j * sb + k * sd;
+            const float g0 = 0.5f * (float(v[row + sa]) - float(v[row - sa]));
+            const float g1 = 0.5f * (float(v[row + 2 * sa]) - float(v[row]));
+            sum += wb[j] * wd[k] * (wa[0] * g0 + wa[1] * g1);
+          }
+        return sum;
+      };
+      g = Vec3d{along(sx, sy, sz, w[0], w[1], w[2]), along(sy, sz, sx, w[1], w[2], w[0]),
+                along(sz, sx, sy, w[2], w[0], w[1])};
+    });
+    return g;
+  }
   visitSamples([&](const auto* v) {
     const size_t base = index(c.x, c.y, c.z);
     for (int a = 0; a < 3; ++a) {
