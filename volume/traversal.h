@@ -21,11 +21,16 @@ template <typename Real>
 struct GridRay {
   Vec3<Real> org, dir, invDir;
   GridRay() = default;
-  GridRay(const Vec3<Real>& o, const Vec3<Real>& d) : org(o), dir(d) {
+  GridRay(const Vec3<Real>& o, const Vec3<Real>& d)
+      : org(o), dir(d), m_valid(isFinite(o) && isFinite(d) && !(d == Vec3<Real>{0, 0, 0})) {
     for (int a = 0; a < 3; ++a) invDir[a] = Real(1) / d[a];
   }
   Real planeT(int axis, int k) const { return (Real(k) - org[axis]) * invDir[axis]; }
-  bool valid() const { return isFinite(org) && isFinite(dir) && !(dir == Vec3<Real>{0, 0, 0}); }
+  // Finite, with a direction: decided once per ray (a query per brick only reads it).
+  bool valid() const { return m_valid; }
+
+ private:
+  bool m_valid = false;
 };
 
 // Maps a world-space ray to grid coordinates. Done in double so that a grid placed far from
@@ -162,6 +167,27 @@ inline Real approachSide(const Cubic<Real>& c, Real flat) {
   return d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : flat;
 }
 
+// Entering a box through a face exactly on the surface (a brick seam, a restart at a face),
+// the class is the one the ray had in the cell behind that face, as a traversal through it
+// would have carried it: the side the cubic of that cell's segment (ending at the face point
+// `entry`, local to `cell`) approaches zero from. Otherwise, or at the grid's boundary, `carried`.
+// (A function rather than a lambda of the traversal: it runs at most once per query.)
+template <typename Real, typename Cells>
+Real classBehindEntry(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i cell, int entryAxis,
+                      int entryStep, const Vec3<Real>& entry, const Real g[8], Real carried) {
+  Vec3i prev = cell;
+  prev[entryAxis] -= entryStep;
+  if (prev[entryAxis] < 0 || prev[entryAxis] > cells.dims[entryAxis] - 2) return carried;
+  if (trilinear(g, entry) != Real(0)) return carried;
+  CellSegment<Real> behind;
+  cells.load(prev, iso, behind.g);
+  behind.b = entry;
+  behind.b[entryAxis] = Real(1) - entry[entryAxis];
+  behind.a = behind.b - ray.dir;
+  const Real tiny = std::numeric_limits<Real>::denorm_min();
+  return approachSide(cellCubic(behind), carried) > Real(0) ? tiny : -tiny;
+}
+
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 // `start` applies where the query starts at tnear inside the box (not at a face of it).
@@ -207,7 +233,8 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
       cell[a] = pos ? lo[a] : hi[a] - 1;
     } else {
       const Real p = ray.org[a] + t0 * ray.dir[a];
-      cell[a] = std::clamp(int(std::floor(p)), lo[a], hi[a] - 1);
+      // Truncation is floor for p >= 0, and below 0 both clamp to lo[a] >= 0.
+      cell[a] = std::clamp(int(p), lo[a], hi[a] - 1);
     }
     step[a] = ray.dir[a] == Real(0) ? 0 : (pos ? 1 : -1);
     tNext[a] = step[a] == 0 ? inf : ray.planeT(a, cell[a] + (pos ? 1 : 0));
@@ -245,28 +272,13 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
   // starts outside, by the convention that zero is not inside.
   const Real tiny = std::numeric_limits<Real>::denorm_min();
   Real carried = -tiny;
-  // Entering through a face exactly on the surface (a brick seam, a restart at a face), the
-  // class is the one the ray had in the cell behind that face, as a traversal through it
-  // would have carried it; without this a crossing through an exact zero on a brick seam
-  // was seen by neither brick. Only the first cell needs it, and only if it is not of one
-  // strict sign, so it is worked out there, from that cell's values.
+  // Entering through a face exactly on the surface, the class behind that face (without it a
+  // crossing through an exact zero on a brick seam was seen by neither brick). Only the first
+  // cell needs it, and only if it is not of one strict sign: see classBehindEntry.
   bool entryPending = entryAxis >= 0;
   // A given start class stands for the first segment's f0, whatever the field says there.
   bool startGiven = entryAxis < 0 && start != StartClass::Unknown;
   if (startGiven) carried = start == StartClass::Inside ? tiny : -tiny;
-  auto classBehindEntry = [&](const Real g[8]) {
-    Vec3i prev = cell;
-    prev[entryAxis] -= step[entryAxis];
-    if (prev[entryAxis] < 0 || prev[entryAxis] > cells.dims[entryAxis] - 2) return carried;
-    const Vec3<Real> a = localAt(t0, entryAxis, faceValue(entryAxis, true));
-    if (trilinear(g, a) != Real(0)) return carried;
-    CellSegment<Real> behind;
-    cells.load(prev, iso, behind.g);
-    behind.b = a;
-    behind.b[entryAxis] = Real(1) - a[entryAxis];
-    behind.a = behind.b - ray.dir;
-    return approachSide(cellCubic(behind), carried) > Real(0) ? tiny : -tiny;
-  };
   for (;;) {
     ++stats.cellsVisited;
     int m = 0;
@@ -292,7 +304,9 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
     // values only on the side the ray is already on.
     if (entryPending) {
       entryPending = false;
-      if (positive != 8 && negative != 8) carried = classBehindEntry(seg.g);
+      if (positive != 8 && negative != 8)
+        carried = classBehindEntry(cells, iso, ray, cell, entryAxis, step[entryAxis],
+                                   localAt(t0, entryAxis, faceValue(entryAxis, true)), seg.g, carried);
     }
     const bool carriedIn = carried > Real(0);
     if (startGiven && ((positive == 8 && !carriedIn) || (negative == 8 && carriedIn))) {
