@@ -233,8 +233,9 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
       cell[a] = pos ? lo[a] : hi[a] - 1;
     } else {
       const Real p = ray.org[a] + t0 * ray.dir[a];
-      // Truncation is floor for p >= 0, and below 0 both clamp to lo[a] >= 0.
-      cell[a] = std::clamp(int(p), lo[a], hi[a] - 1);
+      // Clamped first, then truncated: the same cell as floor-then-clamp (lo >= 0), cheaper, and
+      // no out-of-range conversion for a far origin whose p carries a large rounding error.
+      cell[a] = int(std::clamp(p, Real(lo[a]), Real(hi[a] - 1)));
     }
     step[a] = ray.dir[a] == Real(0) ? 0 : (pos ? 1 : -1);
     tNext[a] = step[a] == 0 ? inf : ray.planeT(a, cell[a] + (pos ? 1 : 0));
