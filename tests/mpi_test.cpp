@@ -28,7 +28,10 @@ using test::runIsotrace;
 std::string mpirun(int ranks) {
   const char* asan = std::getenv("ASAN_OPTIONS");
   const std::string env = asan ? "ASAN_OPTIONS=\"" + std::string(asan) + ":detect_leaks=0\" " : "";
-  return env + "timeout 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe --mca btl_vader_single_copy_mechanism none -np " +
+  // --foreground: a signal to timeout goes to mpirun alone. Without it timeout sends it to
+  // mpirun and then to its whole process group again, and a second SIGINT makes mpirun kill
+  // the ranks at once (no image: an intermittent failure of the interrupt test below).
+  return env + "timeout --foreground 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe --mca btl_vader_single_copy_mechanism none -np " +
          std::to_string(ranks) + " ";
 }
 
@@ -150,11 +153,13 @@ TEST(Mpi, InterruptWritesThePartialImage) {
   // A signal that falls inside loading (a busy machine) ends the run without an image, by
   // design; then the test tries again, waiting longer.
   for (int delay : {8, 30}) {
-    const std::string cmd = mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path --spp 1000000 " +
-                            "--threads 1 --quiet -o " + image + " >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep " +
-                            std::to_string(delay) + "; kill -INT $pid; wait $pid";
+    const std::string cmd = mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path " +
+                            "--spp 1000000 --threads 1 --quiet -o " + image + " >/dev/null 2>" + dir +
+                            "/err.txt & pid=$!; sleep " + std::to_string(delay) + "; kill -INT $pid; wait $pid";
     EXPECT_NE(runCommand("bash -c '" + cmd + "'").status, 0) << "mpirun ends with an error status after a signal";
     if (fs::exists(image)) break;
+    std::ifstream err(dir + "/err.txt");
+    std::cerr << "no image after " << delay << " s; stderr: " << std::string(std::istreambuf_iterator<char>(err), {}) << "\n";
   }
   std::map<std::string, std::string> metadata;
   const std::vector<float> pixels = readExr(image, nullptr, &metadata);
