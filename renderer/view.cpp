@@ -89,7 +89,6 @@ std::string jpeg(const std::vector<uint8_t>& rgb, int w, int h) {
 
 Json vec(const Vec3d& v) { return Json::array({v.x, v.y, v.z}); }
 
-
 }  // namespace
 
 // The scene being explored: its JSON (the source of truth: every change patches it and is

@@ -215,12 +215,6 @@ TEST(View, SurvivesDroppedConnectionsAndStopsPromptly) {
   listener.join();
 }
 
-}  // namespace
-}  // namespace iso
-
-namespace iso {
-namespace {
-
 // Bad flags and scenes: one line, status 2, nothing listening.
 TEST(View, BadFlagsAndScenesAreBadInput) {
   const std::string dir = test::scratchDir();

@@ -153,7 +153,8 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
   const int64_t stride[3] = {1, m_dims.x, int64_t(m_dims.x) * m_dims.y};
   // Per axis: the central differences at the cell's two corners along it, interpolated
   // along it, then bilinearly across it. Away from the grid's faces every neighbour exists
-  // (the common case, no branches); on them the differences become one-sided.
+  // (the common case, written out below without a branch); on them the differences become
+  // one-sided.
   bool interior = true;
   for (int a = 0; a < 3; ++a) interior = interior && c[a] >= 1 && c[a] + 2 <= m_dims[a] - 1;
   const float w[3][2] = {{float(1 - f.x), float(f.x)}, {float(1 - f.y), float(f.y)}, {float(1 - f.z), float(f.z)}};
@@ -181,8 +182,8 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
     return g;
   }
   if (interior) {
-    // The common case written out per axis (the same arithmetic in the same order as the loop
-    // below, so the same bits): constant strides, no branch per sample.
+    // Constant strides, no branch per sample; the arithmetic of the loop below where both
+    // neighbours exist (lo and hi: a difference over 2), in the same order.
     visitSamples([&](const auto* v) {
       const size_t base = index(c.x, c.y, c.z);
       const size_t sx = 1, sy = size_t(stride[1]), sz = size_t(stride[2]);
@@ -211,15 +212,9 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
       for (int j = 0; j < 2; ++j)
         for (int k = 0; k < 2; ++k) {
           const size_t row = base + size_t(j * stride[b] + k * stride[d]);
-          float g0, g1;
-          if (interior) {
-            g0 = 0.5f * (float(v[row + sa]) - float(v[row - sa]));
-            g1 = 0.5f * (float(v[row + 2 * sa]) - float(v[row]));
-          } else {
-            const bool lo = c[a] > 0, hi = c[a] + 2 <= m_dims[a] - 1;
-            g0 = (float(v[row + sa]) - float(v[lo ? row - sa : row])) / (lo ? 2.f : 1.f);
-            g1 = (float(v[hi ? row + 2 * sa : row + sa]) - float(v[row])) / (hi ? 2.f : 1.f);
-          }
+          const bool lo = c[a] > 0, hi = c[a] + 2 <= m_dims[a] - 1;
+          const float g0 = (float(v[row + sa]) - float(v[lo ? row - sa : row])) / (lo ? 2.f : 1.f);
+          const float g1 = (float(v[hi ? row + 2 * sa : row + sa]) - float(v[row])) / (hi ? 2.f : 1.f);
           sum += w[b][j] * w[d][k] * (w[a][0] * g0 + w[a][1] * g1);
         }
       g[a] = sum;

@@ -180,32 +180,24 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
   // (a ray leaving the surface starts next to its hit, in a surface cell). Its margin is four
   // times the rounding of the float grid ray below, so that ray's start cell lies in that box
   // too, and the answer is the same.
-  {
-    const Vec3d o = (org - m_grid.origin()) / m_grid.spacing(), d = dir / m_grid.spacing();
-    const Vec3d p = o + d * tnear;
-    const Vec3i dims = m_grid.dims();
+  const Vec3d o = (org - m_grid.origin()) / m_grid.spacing(), d = dir / m_grid.spacing();
+  const Vec3d p = o + d * tnear;
+  const Vec3i dims = m_grid.dims();
+  if (p.x >= 0 && p.y >= 0 && p.z >= 0 && p.x < dims.x - 1 && p.y < dims.y - 1 && p.z < dims.z - 1) {
     const double margin = 1e-6 * (std::max({std::fabs(o.x), std::fabs(o.y), std::fabs(o.z)}) +
                                   std::fabs(tnear) * std::max({std::fabs(d.x), std::fabs(d.y), std::fabs(d.z)}) + 1);
-    if (p.x >= 0 && p.y >= 0 && p.z >= 0 && p.x < dims.x - 1 && p.y < dims.y - 1 && p.z < dims.z - 1) {
-      const int32_t primitive = m_primitiveOf[m_bricks.brickOf(Vec3i{int(p.x), int(p.y), int(p.z)})];
-      if (primitive >= 0) {
-        const Primitive& box = m_primitives[primitive];
-        bool inside = true;
-        for (int a = 0; a < 3; ++a) inside = inside && p[a] >= box.lo[a] + margin && p[a] <= box.hi[a] - margin;
-        if (inside) return false;
-      }
-    }
+    const int32_t primitive = m_primitiveOf[m_bricks.brickOf(Vec3i{int(p.x), int(p.y), int(p.z)})];
+    if (primitive >= 0 && m_primitives[primitive].holds(p, margin)) return false;
   }
   // The start cell as the traversal finds it: in the precision of the intersector.
   auto startCell = [&](auto real, Vec3i& cell) {
     using Real = decltype(real);
     const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
     if (!ray.valid()) return false;
-    const Vec3i d = m_grid.dims();
     for (int a = 0; a < 3; ++a) {
-      const Real p = ray.org[a] + Real(tnear) * ray.dir[a];
-      if (!(p >= Real(0) && p <= Real(d[a] - 1))) return false;
-      cell[a] = std::min(int(std::floor(p)), d[a] - 2);
+      const Real q = ray.org[a] + Real(tnear) * ray.dir[a];
+      if (!(q >= Real(0) && q <= Real(dims[a] - 1))) return false;
+      cell[a] = std::min(int(std::floor(q)), dims[a] - 2);
     }
     return true;
   };

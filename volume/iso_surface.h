@@ -122,6 +122,12 @@ class IsoSurface {
     bool contains(const Vec3i& c) const {
       return c.x >= lo.x && c.y >= lo.y && c.z >= lo.z && c.x < hi.x && c.y < hi.y && c.z < hi.z;
     }
+    // A point of grid space at least `margin` inside the box.
+    bool holds(const Vec3d& p, double margin) const {
+      for (int a = 0; a < 3; ++a)
+        if (!(p[a] >= lo[a] + margin && p[a] <= hi[a] - margin)) return false;
+      return true;
+    }
   };
   std::vector<uint32_t> m_active;
   std::vector<int32_t> m_primitiveOf;  // per brick: index into m_primitives, or -1
