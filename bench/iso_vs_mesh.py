@@ -13,13 +13,20 @@ the volumes; then both are rendered with the same camera, lights, spp and seed, 
 Prints per scene and mode the median render seconds, rays per second, the iso/mesh ratio of
 the medians and the relative image difference (mean |iso - mesh| / mean mesh, path mode).
 Usage: bench/iso_vs_mesh.py [--runs N] [--resolution WxH] [--modes path,camera,shadow]
-       [--json FILE] [--isotrace BINARY] [SCENE.json ...]
+       [--json FILE] [--isotrace BINARY] [--instructions] [SCENE.json ...]
 --isotrace renders with another build (e.g. an older commit's, to compare before and after;
 the meshes are always extracted with this checkout's build/isotrace).
+--instructions counts instructions instead of seconds: each twin is rendered once under
+valgrind's callgrind (160x90 unless --resolution says otherwise, 4 spp, 1 thread), counting only
+inside the integrator's per-ray function, so loading, building and writing the image are left
+out. The counts repeat exactly from run to run and do not depend on what else the machine is
+doing, which is how a step of a few percent can be judged on a shared machine (needs valgrind;
+about a minute per scene and mode).
 """
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -102,6 +109,24 @@ def render(scene, extra, resolution, image, stats):
     return s["seconds"]["render"], s["rays"]
 
 
+# The per-ray function of each mode's integrator: callgrind counts only while it runs.
+INTEGRATOR_SYMBOL = {"path": "iso::PathIntegrator::Li*", "camera": "*NormalsIntegrator::Li*",
+                     "shadow": "*AmbientOcclusionIntegrator::Li*"}
+
+
+def count_instructions(scene, mode, resolution, image, work):
+    """Instructions executed inside the integrator's Li for one render (callgrind)."""
+    out = os.path.join(work, "callgrind.out")
+    run(["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out,
+         "--toggle-collect=" + INTEGRATOR_SYMBOL[mode], RENDERER, "render", scene, "-o", image,
+         "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"])
+    with open(out) as f:
+        for line in f:
+            if line.startswith("totals:") or line.startswith("summary:"):
+                return int(line.split()[1])
+    sys.exit("iso_vs_mesh: no instruction total in callgrind's output")
+
+
 def image_difference(a, b):
     """mean |a - b| over the mean of b, from oiiotool's statistics."""
     def mean(args):
@@ -118,11 +143,16 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*")
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--resolution", default="960x540")
+    parser.add_argument("--resolution")
     parser.add_argument("--modes", default="path,camera,shadow")
     parser.add_argument("--json")
     parser.add_argument("--isotrace", help="the isotrace binary that renders (default: build/isotrace)")
+    parser.add_argument("--instructions", action="store_true",
+                        help="count instructions under callgrind instead of timing renders")
     args = parser.parse_args()
+    if args.instructions and not shutil.which("valgrind"):
+        sys.exit("iso_vs_mesh: --instructions needs valgrind (apt-get install valgrind)")
+    resolution = args.resolution or ("160x90" if args.instructions else "960x540")
     global RENDERER
     if args.isotrace:
         RENDERER = os.path.abspath(args.isotrace)
@@ -135,6 +165,25 @@ def main():
         if m not in ("path", "camera", "shadow"):
             sys.exit("iso_vs_mesh: unknown mode '%s' (path, camera, shadow)" % m)
     results = []
+    if args.instructions:
+        with tempfile.TemporaryDirectory() as work:
+            print("%-12s %-7s %12s %12s %7s" % ("scene", "mode", "iso Minstr", "mesh Minstr", "ratio"))
+            for scene in scenes:
+                name, iso_path, mesh_path, triangles = twin_scenes(scene, work)
+                for mode in modes:
+                    counts = {}
+                    for kind, path in (("iso", iso_path), ("mesh", mesh_path)):
+                        s, _ = mode_scene(path, mode, work)
+                        counts[kind] = count_instructions(s, mode, resolution, os.path.join(work, "i.exr"), work)
+                    ratio = counts["iso"] / counts["mesh"]
+                    print("%-12s %-7s %12.1f %12.1f %7.2f" % (name, mode, counts["iso"] / 1e6, counts["mesh"] / 1e6, ratio),
+                          flush=True)
+                    results.append({"scene": name, "mode": mode, "iso_instructions": counts["iso"],
+                                    "mesh_instructions": counts["mesh"], "ratio": ratio, "triangles": triangles})
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump({"resolution": resolution, "spp": 4, "threads": 1, "results": results}, f, indent=1)
+        return
     with tempfile.TemporaryDirectory() as work:
         print("%-12s %-7s %9s %9s %10s %10s %7s %9s %10s" %
               ("scene", "mode", "iso s", "mesh s", "iso Mr/s", "mesh Mr/s", "ratio", "img diff", "triangles"))
@@ -149,7 +198,7 @@ def main():
                     for kind in ("iso", "mesh"):
                         s, extra = scenes_of_mode[kind]
                         image = os.path.join(work, "%s.%s.%s.exr" % (name, mode, kind))
-                        seconds, ray_counts = render(s, extra, args.resolution, image,
+                        seconds, ray_counts = render(s, extra, resolution, image,
                                                      os.path.join(work, "stats.json"))
                         times[kind].append(seconds)
                         rays[kind] = ray_counts
@@ -167,7 +216,7 @@ def main():
                                 "triangles": triangles})
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"resolution": args.resolution, "runs": args.runs, "results": results}, f, indent=1)
+            json.dump({"resolution": resolution, "runs": args.runs, "results": results}, f, indent=1)
 
 
 if __name__ == "__main__":
