@@ -139,6 +139,44 @@ def image_difference(a, b):
     return mean([a, b, "--absdiff"]) / max(mean([b]), 1e-30)
 
 
+SECONDS_HEADER = "%-12s %-7s %9s %9s %10s %10s %7s %9s %10s" % (
+    "scene", "mode", "iso s", "mesh s", "iso Mr/s", "mesh Mr/s", "ratio", "img diff", "triangles")
+INSTRUCTIONS_HEADER = "%-12s %-7s %12s %12s %7s" % ("scene", "mode", "iso Minstr", "mesh Minstr", "ratio")
+
+
+def measure_seconds(name, mode, scenes_of_mode, triangles, resolution, runs, work):
+    """Median render seconds of `runs` interleaved renders of each twin: the table row and its record."""
+    times = {"iso": [], "mesh": []}
+    rays = {}
+    for r in range(runs):
+        for kind in ("iso", "mesh"):
+            s, extra = scenes_of_mode[kind]
+            image = os.path.join(work, "%s.%s.%s.exr" % (name, mode, kind))
+            seconds, ray_counts = render(s, extra, resolution, image, os.path.join(work, "stats.json"))
+            times[kind].append(seconds)
+            rays[kind] = ray_counts
+    med = {k: statistics.median(v) for k, v in times.items()}
+    rate = {k: rays[k]["total"] / med[k] / 1e6 for k in med}
+    diff = image_difference(os.path.join(work, "%s.%s.iso.exr" % (name, mode)),
+                            os.path.join(work, "%s.%s.mesh.exr" % (name, mode))) if mode == "path" else None
+    ratio = med["iso"] / med["mesh"]
+    line = "%-12s %-7s %9.3f %9.3f %10.2f %10.2f %7.2f %9s %10d" % (
+        name, mode, med["iso"], med["mesh"], rate["iso"], rate["mesh"], ratio,
+        "%.4f" % diff if diff is not None else "-", triangles)
+    return line, {"iso_seconds": times["iso"], "mesh_seconds": times["mesh"], "iso_median": med["iso"],
+                  "mesh_median": med["mesh"], "ratio": ratio, "iso_rays": rays["iso"], "mesh_rays": rays["mesh"],
+                  "image_difference": diff}
+
+
+def measure_instructions(name, mode, scenes_of_mode, triangles, resolution, runs, work):
+    """Instructions of one render of each twin under callgrind: the table row and its record."""
+    counts = {kind: count_instructions(scenes_of_mode[kind][0], mode, resolution, os.path.join(work, "i.exr"), work)
+              for kind in ("iso", "mesh")}
+    ratio = counts["iso"] / counts["mesh"]
+    line = "%-12s %-7s %12.1f %12.1f %7.2f" % (name, mode, counts["iso"] / 1e6, counts["mesh"] / 1e6, ratio)
+    return line, {"iso_instructions": counts["iso"], "mesh_instructions": counts["mesh"], "ratio": ratio}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*")
@@ -164,60 +202,22 @@ def main():
     for m in modes:
         if m not in ("path", "camera", "shadow"):
             sys.exit("iso_vs_mesh: unknown mode '%s' (path, camera, shadow)" % m)
+    measure = measure_instructions if args.instructions else measure_seconds
     results = []
-    if args.instructions:
-        with tempfile.TemporaryDirectory() as work:
-            print("%-12s %-7s %12s %12s %7s" % ("scene", "mode", "iso Minstr", "mesh Minstr", "ratio"))
-            for scene in scenes:
-                name, iso_path, mesh_path, triangles = twin_scenes(scene, work)
-                for mode in modes:
-                    counts = {}
-                    for kind, path in (("iso", iso_path), ("mesh", mesh_path)):
-                        s, _ = mode_scene(path, mode, work)
-                        counts[kind] = count_instructions(s, mode, resolution, os.path.join(work, "i.exr"), work)
-                    ratio = counts["iso"] / counts["mesh"]
-                    print("%-12s %-7s %12.1f %12.1f %7.2f" % (name, mode, counts["iso"] / 1e6, counts["mesh"] / 1e6, ratio),
-                          flush=True)
-                    results.append({"scene": name, "mode": mode, "iso_instructions": counts["iso"],
-                                    "mesh_instructions": counts["mesh"], "ratio": ratio, "triangles": triangles})
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump({"resolution": resolution, "spp": 4, "threads": 1, "results": results}, f, indent=1)
-        return
     with tempfile.TemporaryDirectory() as work:
-        print("%-12s %-7s %9s %9s %10s %10s %7s %9s %10s" %
-              ("scene", "mode", "iso s", "mesh s", "iso Mr/s", "mesh Mr/s", "ratio", "img diff", "triangles"))
+        print(INSTRUCTIONS_HEADER if args.instructions else SECONDS_HEADER)
         for scene in scenes:
             name, iso_path, mesh_path, triangles = twin_scenes(scene, work)
             for mode in modes:
-                times = {"iso": [], "mesh": []}
-                rays = {}
                 scenes_of_mode = {kind: mode_scene(path, mode, work)
                                   for kind, path in (("iso", iso_path), ("mesh", mesh_path))}
-                for r in range(args.runs):
-                    for kind in ("iso", "mesh"):
-                        s, extra = scenes_of_mode[kind]
-                        image = os.path.join(work, "%s.%s.%s.exr" % (name, mode, kind))
-                        seconds, ray_counts = render(s, extra, resolution, image,
-                                                     os.path.join(work, "stats.json"))
-                        times[kind].append(seconds)
-                        rays[kind] = ray_counts
-                med = {k: statistics.median(v) for k, v in times.items()}
-                rate = {k: rays[k]["total"] / med[k] / 1e6 for k in med}
-                diff = image_difference(os.path.join(work, "%s.%s.iso.exr" % (name, mode)),
-                                        os.path.join(work, "%s.%s.mesh.exr" % (name, mode))) if mode == "path" else None
-                ratio = med["iso"] / med["mesh"]
-                print("%-12s %-7s %9.3f %9.3f %10.2f %10.2f %7.2f %9s %10d" %
-                      (name, mode, med["iso"], med["mesh"], rate["iso"], rate["mesh"], ratio,
-                       "%.4f" % diff if diff is not None else "-", triangles), flush=True)
-                results.append({"scene": name, "mode": mode, "iso_seconds": times["iso"], "mesh_seconds": times["mesh"],
-                                "iso_median": med["iso"], "mesh_median": med["mesh"], "ratio": ratio,
-                                "iso_rays": rays["iso"], "mesh_rays": rays["mesh"], "image_difference": diff,
-                                "triangles": triangles})
+                line, result = measure(name, mode, scenes_of_mode, triangles, resolution, args.runs, work)
+                print(line, flush=True)
+                results.append(dict(scene=name, mode=mode, triangles=triangles, **result))
     if args.json:
+        setup = {"spp": 4, "threads": 1} if args.instructions else {"runs": args.runs}
         with open(args.json, "w") as f:
-            json.dump({"resolution": resolution, "runs": args.runs, "results": results}, f, indent=1)
-
+            json.dump(dict(resolution=resolution, results=results, **setup), f, indent=1)
 
 if __name__ == "__main__":
     main()
