@@ -722,5 +722,60 @@ TEST(Cli, MeshExportsTheSurfaceInWorldSpace) {
     EXPECT_TRUE(entry.path().filename() == "m.json" || entry.path().filename() == "sphere.glb") << entry.path();
 }
 
+
+// bench/packet_coherence (issue 11's packet question): its figures obey what a lockstep walk
+// can do, and its arguments are checked like isotrace's.
+TEST(BenchTools, PacketCoherenceFiguresAreBoundedAndConsistent) {
+  const std::string dir = test::scratchDir();
+  const std::string scene = dir + "/s.json";
+  test::writeText(scene, mixedScene());  // 32x24 film: 4x2 and 4x4 tiles cover every pixel
+  const auto r = test::runCommand(std::string(ISOTRACE_PACKET_COHERENCE) + " " + scene + " 32");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::map<std::string, std::pair<long, long>> totals;  // kind -> queries, cells (8-wide)
+  std::istringstream lines(r.out);
+  std::string line;
+  int rows = 0;
+  while (std::getline(lines, line)) {
+    if (line.find("-wide:") == std::string::npos) continue;
+    const std::string kind = line.substr(0, 15);
+    int lanes = 0;
+    long queries = 0, cells = 0, groups = 0;
+    double active = 0, perStep = 0, percent = 0;
+    ASSERT_EQ(std::sscanf(line.c_str() + 15, " %d-wide: %ld queries %ld cells | %ld packet-bricks, %lf lanes active, "
+                          "%lf cells per lockstep step (%lf%%", &lanes, &queries, &cells, &groups, &active, &perStep,
+                          &percent), 7) << line;
+    ++rows;
+    EXPECT_GT(queries, 0) << line;  // the ball is in view, lit from above, and bounced off
+    EXPECT_GE(cells, queries) << line;  // a query walks at least its first cell
+    EXPECT_GE(active, 1.0) << line;
+    EXPECT_LE(active, double(lanes)) << line;
+    EXPECT_GE(perStep, 1.0 - 1e-9) << line;  // a lockstep step does at least one lane's cell
+    EXPECT_LE(perStep, double(lanes) + 1e-9) << line;
+    EXPECT_NEAR(percent, 100 * perStep / lanes, 0.05 + 0.5 / lanes) << line;  // both printed rounded
+    auto [it, first] = totals.insert({kind, {queries, cells}});
+    if (!first) {  // the same rays, tiled two ways
+      EXPECT_EQ(it->second.first, queries) << line;
+      EXPECT_EQ(it->second.second, cells) << line;
+    }
+  }
+  EXPECT_EQ(rows, 6) << r.out;
+
+  auto bad = [&](const std::string& args, const std::string& fragment) {
+    const auto e = test::runCommand(std::string(ISOTRACE_PACKET_COHERENCE) + " " + args);
+    EXPECT_EQ(e.status, 2) << args << "\n" << e.err;
+    EXPECT_NE(e.err.find(fragment), std::string::npos) << e.err;
+    EXPECT_EQ(std::count(e.err.begin(), e.err.end(), '\n'), 1) << e.err;
+  };
+  bad(scene + " 7", "WIDTH: expected a whole number from 16 to 1920, got '7'");
+  bad(scene + " 32x", "got '32x'");
+  bad(scene + " 99999999999999999999", "from 16 to 1920");
+  bad(dir + "/missing.json", dir + "/missing.json");
+  bad("", "usage: packet_coherence SCENE.json [WIDTH]");
+  test::writeText(dir + "/no_iso.json", R"({"camera": {"position": [0, 1, 4]}, "meshes": [{"shape": "quad"}]})");
+  bad(dir + "/no_iso.json", "no_iso.json: the scene has no iso-surface");
+  test::writeText(dir + "/broken.json", "{\"camera\": ");
+  bad(dir + "/broken.json", "broken.json");
+}
+
 }  // namespace
 }  // namespace iso
