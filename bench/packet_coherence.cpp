@@ -34,22 +34,37 @@ struct BrickQuery {
   uint64_t cells;
 };
 
+// The tight boxes of every surface's active bricks (object space), as Embree holds them.
+struct BrickBox {
+  float lower[3], upper[3];
+};
+std::vector<std::vector<BrickBox>> brickBoxes(const World& world) {
+  std::vector<std::vector<BrickBox>> boxes(world.surfaces().size());
+  for (size_t si = 0; si < boxes.size(); ++si) {
+    const IsoSurface& surface = *world.surfaces()[si].surface;
+    boxes[si].resize(surface.activeBricks().size());
+    for (uint32_t p = 0; p < boxes[si].size(); ++p) surface.primitiveBounds(p, boxes[si][p].lower, boxes[si][p].upper);
+  }
+  return boxes;
+}
+
 // The bricks of every surface a ray queries, nearest box first, and the cells walked in each.
-void walkBricks(const World& world, const Ray& ray, double tfar, bool anyHit, std::vector<BrickQuery>& out) {
+void walkBricks(const World& world, const std::vector<std::vector<BrickBox>>& boxes, const Ray& ray, double tfar,
+                bool anyHit, std::vector<BrickQuery>& out) {
   out.clear();
-  for (size_t si = 0; si < world.surfaces().size(); ++si) {
+  std::vector<std::pair<double, uint32_t>> entered;
+  for (size_t si = 0; si < boxes.size(); ++si) {
     const IsoSurface& surface = *world.surfaces()[si].surface;
     const Vec3d org = surface.objectOrigin(ray.origin()), dir = surface.objectDirection(Vec3d(ray.dir));
     const StartClass start = ray.fromSurface == int(si)
                                  ? (ray.fromInside ? StartClass::Inside : StartClass::Outside)
                                  : StartClass::Unknown;
-    std::vector<std::pair<double, uint32_t>> entered;
-    for (uint32_t p = 0; p < surface.activeBricks().size(); ++p) {
-      float lo[3], hi[3];
-      surface.primitiveBounds(p, lo, hi);
+    entered.clear();
+    for (uint32_t p = 0; p < boxes[si].size(); ++p) {
+      const BrickBox& box = boxes[si][p];
       double t0 = ray.tnear, t1 = tfar;
       for (int a = 0; a < 3; ++a) {
-        double ta = (lo[a] - org[a]) / dir[a], tb = (hi[a] - org[a]) / dir[a];
+        double ta = (box.lower[a] - org[a]) / dir[a], tb = (box.upper[a] - org[a]) / dir[a];
         if (ta > tb) std::swap(ta, tb);
         t0 = std::max(t0, ta);
         t1 = std::min(t1, tb);
@@ -141,6 +156,7 @@ int main(int argc, char** argv) {
         break;
       }
     const Camera camera(world.camera(), width, height);
+    const auto boxes = brickBoxes(world);
     std::mt19937 rng(7);
     std::uniform_real_distribution<float> uniform(0.f, 1.f);
     const size_t pixels = size_t(width) * size_t(height);
@@ -153,13 +169,13 @@ int main(int argc, char** argv) {
         TraversalStats stats;
         const bool found = world.intersect(ray, hit, stats);
         // A triangle in front ends the walk there, as Embree's shortened ray would.
-        walkBricks(world, ray, found && hit.surface < 0 ? double(hit.t) : 1e30, false, cameraRays[i]);
+        walkBricks(world, boxes, ray, found && hit.surface < 0 ? double(hit.t) : 1e30, false, cameraRays[i]);
         if (!found || hit.surface < 0) continue;
         const Vec3f n = dot(hit.normal, ray.dir) < 0 ? hit.normal : -hit.normal;
-        if (dot(n, toSun) > 0) walkBricks(world, spawnRay(hit, toSun), 1e30, true, sunRays[i]);
+        if (dot(n, toSun) > 0) walkBricks(world, boxes, spawnRay(hit, toSun), 1e30, true, sunRays[i]);
         const float u0 = uniform(rng), u1 = uniform(rng);
         const Vec3f bounce = Frame::fromNormal(n, ray.dir).toWorld(sampleCosineHemisphere(u0, u1));
-        walkBricks(world, spawnRay(hit, bounce), 1e30, false, bounceRays[i]);
+        walkBricks(world, boxes, spawnRay(hit, bounce), 1e30, false, bounceRays[i]);
       }
     std::printf("%s, %dx%d, one ray per pixel and kind\n", argv[1], width, height);
     printCoherence("camera", cameraRays, width, height);
