@@ -48,7 +48,9 @@ std::vector<std::vector<BrickBox>> brickBoxes(const World& world) {
   return boxes;
 }
 
-// The bricks of every surface a ray queries, nearest box first, and the cells walked in each.
+// The bricks of every surface a ray queries, nearest box first, and the cells walked in each
+// (surfaces are walked one after the other: the bricks of a later one beyond an earlier one's
+// hit are not queried, as Embree's shortened ray would not reach them).
 void walkBricks(const World& world, const std::vector<std::vector<BrickBox>>& boxes, const Ray& ray, double tfar,
                 bool anyHit, std::vector<BrickQuery>& out) {
   out.clear();
@@ -72,17 +74,16 @@ void walkBricks(const World& world, const std::vector<std::vector<BrickBox>>& bo
       if (t0 <= t1) entered.push_back({t0, p});
     }
     std::sort(entered.begin(), entered.end());
-    double limit = tfar;
     for (const auto& [tEnter, p] : entered) {
-      if (tEnter > limit) break;
+      if (tEnter > tfar) break;
       TraversalStats stats;
       bool hit;
       if (anyHit) {
-        hit = surface.occludedBrick(p, org, dir, ray.tnear, limit, stats, start);
+        hit = surface.occludedBrick(p, org, dir, ray.tnear, tfar, stats, start);
       } else {
         SurfaceHit h;
-        hit = surface.intersectBrick(p, org, dir, ray.tnear, limit, h, stats, start);
-        if (hit) limit = std::min(limit, h.t);
+        hit = surface.intersectBrick(p, org, dir, ray.tnear, tfar, h, stats, start);
+        if (hit) tfar = std::min(tfar, h.t);  // the nearest hit so far ends every surface's walk
       }
       out.push_back({uint64_t(si) << 32 | p, stats.cellsVisited});
       if (hit && anyHit) return;
