@@ -11,6 +11,8 @@
 #include <filesystem>
 #include <iostream>
 #include <chrono>
+#include <signal.h>
+
 #include <csignal>
 #include <unistd.h>
 #include <tbb/task_arena.h>
@@ -135,7 +137,9 @@ std::string withSuffix(const std::string& path, const std::string& suffix) {
 
 // SIGINT and SIGTERM: the first asks the render to stop (the image of the samples so far is
 // still written, and nothing partial is left); a second SIGINT ends the process at once.
+volatile std::sig_atomic_t g_stopSignal = 0;  // the first stop signal, named in the message
 void onStopSignal(int signal) {
+  if (g_stopSignal == 0) g_stopSignal = signal;
   requestStop();
   if (signal == SIGINT) std::signal(SIGINT, SIG_DFL);
 }
@@ -380,6 +384,12 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     std::unique_ptr<Film> direct;
     if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
 
+    // Said before the first sample, so that a log (or a test) knows the render has begun.
+    if (!flags.quiet && job.rank() == 0) {
+      const std::string which = seq.frames > 1 ? " (frame " + std::to_string(frame + 1) + " of " + std::to_string(seq.frames) + ")" : "";
+      std::fprintf(stderr, "isotrace: rendering %dx%d, %d spp, %s%s\n", s.width, s.height, s.spp, s.integrator.c_str(), which.c_str());
+      std::fflush(stderr);
+    }
     const RenderResult result = byTiles ? renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures)
                                         : renderFrame(camera, *integrator, options, film, direct.get());
     if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
@@ -475,7 +485,8 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
                  (unsigned long long)c.traversal.rootsRefined);
   }
   if (total.interrupted) {
-    std::fprintf(stderr, "isotrace: interrupted: wrote the image of %d of %d samples per pixel%s\n", total.minSamples,
+    std::fprintf(stderr, "isotrace: interrupted by %s: wrote the image of %d of %d samples per pixel%s\n",
+                 g_stopSignal == SIGTERM ? "SIGTERM" : "SIGINT", total.minSamples,
                  s.spp, seq.frames > 1 ? (" (frame " + std::to_string(framesDone - 1) + "; the rest not rendered)").c_str() : "");
     return 130;
   }
@@ -489,8 +500,14 @@ int render(const RenderFlags& flags) {
   // A stop signal is a request from here on: loading ends first (then nothing is written), a
   // render ends at the next tile (the next pixel under MPI) and its image is written whole (a
   // sequence then stops).
+  // A job that a non-interactive shell starts with `&` begins with SIGINT ignored, so that a
+  // Ctrl-C at the terminal reaches only the foreground job: that ignore is kept, as shells and
+  // the GNU tools keep it. SIGTERM always asks the render to stop.
   clearStopRequest();
-  auto previousInt = std::signal(SIGINT, onStopSignal);
+  g_stopSignal = 0;
+  struct sigaction inherited {};
+  sigaction(SIGINT, nullptr, &inherited);
+  auto previousInt = inherited.sa_handler == SIG_IGN ? SIG_IGN : std::signal(SIGINT, onStopSignal);
   auto previousTerm = std::signal(SIGTERM, onStopSignal);
   struct RestoreSignals {
     decltype(previousInt) i, t;

@@ -124,11 +124,11 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   const double totalWork = double(w) * h * options.spp;
   std::atomic<uint64_t> done{0};
   std::mutex printing;
-  double lastPrint = 0;
+  double lastPrint = -1;  // the bar shows at the first tile, then every quarter of a second
   bool printed = false;
   auto progress = [&](bool final) {
     const double elapsed = seconds(start);
-    if (!final && elapsed - lastPrint < 0.25) return;
+    if (!final && lastPrint >= 0 && elapsed - lastPrint < 0.25) return;
     lastPrint = elapsed;
     const double fraction = std::min(1.0, done.load() / totalWork);
     char e[32], eta[32];
@@ -154,12 +154,14 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
 
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   RenderResult result;
-  for (int pass = 0, s0 = 0; s0 < options.spp && !stopRequested(); ++pass) {
+  // A stop request is honoured once the first pass is done: an interrupted image has every
+  // pixel sampled (a second Ctrl-C ends the process at once).
+  for (int pass = 0, s0 = 0; s0 < options.spp && (pass == 0 || !stopRequested()); ++pass) {
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp);
     arena.execute([&] {
       tbb::parallel_for(tbb::blocked_range<int>(0, tiles.tiles(), 1), [&](const tbb::blocked_range<int>& r) {
         for (int t = r.begin(); t < r.end(); ++t)
-          if (!stopRequested()) renderTile(t, s0, s1);
+          if (pass == 0 || !stopRequested()) renderTile(t, s0, s1);
       });
     });
     s0 = s1;

@@ -2,8 +2,9 @@
 // Renders a frame: progressive passes over all pixels (1, 1, 2, 4, ... up to 16 samples per
 // pass), each pass TBB-parallel over 16x16 tiles. A pixel's samples come from its own
 // Sampler keyed on (pixel, sample index, seed) and are summed in sample order, so images are
-// bit-identical for any thread count. A stop request (SIGINT) ends the frame at the next tile
-// boundary; the image then averages the samples each pixel has.
+// bit-identical for any thread count. A stop request (SIGINT, SIGTERM) ends the frame at the
+// next tile boundary once the first pass is done; the image then averages the samples each
+// pixel has (at least one).
 #include <cstdint>
 #include <csignal>
 #include <string>

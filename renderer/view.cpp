@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <deque>
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
@@ -102,6 +103,10 @@ class ViewSession {
   // A change, as JSON; an InputError (a 400) changes nothing.
   void apply(const std::string& body);
   // Waits up to `timeout` for a frame newer than `seen`; the event text, or "" (none / quit).
+  // A stream that has seen a frame gets every later frame of the version shown, in order (the
+  // steps of its refinement; one that falls more than kRecentFrames behind skips the oldest);
+  // frames of a version that a change superseded are skipped. A new stream (`seen` 0) starts
+  // at the latest.
   std::string waitFrame(uint64_t& seen, std::chrono::milliseconds timeout);
   std::string latestJpeg();
   Json save();
@@ -163,6 +168,8 @@ class ViewSession {
   Clock::time_point m_changedAt = Clock::now();
   std::string m_error;
   Frame m_frame;     // the latest frame shown
+  static constexpr size_t kRecentFrames = 32;
+  std::deque<std::pair<uint64_t, std::string>> m_recent;  // (serial, event) of m_frame's version, oldest first
   Frame m_saveable;  // the latest full-resolution frame
   std::atomic<bool> m_quit{false};
   std::unique_ptr<World> m_firstWorld;  // built by the constructor, taken by the render thread
@@ -327,6 +334,12 @@ std::string ViewSession::waitFrame(uint64_t& seen, std::chrono::milliseconds tim
   std::unique_lock<std::mutex> lock(m_mutex);
   m_framed.wait_for(lock, timeout, [&] { return m_quit || m_frame.serial > seen; });
   if (m_quit || m_frame.serial <= seen) return "";
+  if (seen != 0)
+    for (const auto& [serial, event] : m_recent)
+      if (serial > seen) {
+        seen = serial;
+        return event;
+      }
   seen = m_frame.serial;
   return m_frame.event;
 }
@@ -493,6 +506,9 @@ void ViewSession::publish(Frame frame, uint64_t version, int spp, int target, Cl
     if (m_version != version) return;  // a change came in meanwhile: no stale frame
     frame.serial = m_frame.serial + 1;
     frame.event = "event: frame\ndata: " + event.dump() + "\n\n";
+    if (m_frame.version != version) m_recent.clear();
+    m_recent.emplace_back(frame.serial, frame.event);
+    if (m_recent.size() > kRecentFrames) m_recent.pop_front();
     if (!frame.preview) m_saveable = frame;  // the films are shared, not copied
     m_frame = std::move(frame);
   }

@@ -186,10 +186,15 @@ view.addEventListener("wheel", (e) => {
   send("camera", {camera: state.camera});
 }, {passive: false});
 
+// The frames received lately, for a look from the console (and the browser test): version,
+// samples, preview.
+const frameLog = [];
 loadState().then(() => {
   const events = new EventSource("/api/events");
   events.addEventListener("frame", (e) => {
     const f = JSON.parse(e.data);
+    frameLog.push({version: f.version, spp: f.spp, preview: f.preview});
+    if (frameLog.length > 256) frameLog.shift();
     view.src = f.image;
     view.style.width = f.display_width + "px";
     $("spp").textContent = f.spp;

@@ -13,6 +13,7 @@
 
 #include "scene/gltf.h"
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 namespace {
@@ -171,14 +172,18 @@ std::string glbJson(const std::string& bytes, const std::string& file) {
   return bytes.substr(20, jsonLength);
 }
 
-std::string readFile(const std::string& path) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a glTF file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path, "", "cannot open glTF file");
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
+std::string readFile(const std::string& path) { return readWholeFile(path, "glTF file", kMeshStreamCap); }
+
+// tinygltf reads a glTF's buffers and images through this: checked and capped like the file.
+bool readReferencedFile(std::vector<unsigned char>* out, std::string* err, const std::string& path, void*) {
+  try {
+    const std::string bytes = readWholeFile(path, "glTF buffer or image", kMeshStreamCap);
+    out->assign(bytes.begin(), bytes.end());
+    return true;
+  } catch (const InputError& e) {
+    if (err) *err += std::string(e.what()) + "\n";
+    return false;
+  }
 }
 
 // Keeps images encoded: tinygltf would otherwise decode every image of the file.
@@ -587,11 +592,17 @@ GltfModel loadGltf(const std::string& path) {
       std::error_code ec;
       if (fs::is_directory(file, ec)) throw InputError(path, at, "'" + uri + "' is a directory");
       if (!fs::exists(file, ec)) throw InputError(path, at, "'" + uri + "': file not found");
+      try {
+        checkInputFile(file.string(), "glTF buffer or image");
+      } catch (const InputError& e) {
+        throw InputError(path, at, e.what());
+      }
     }
   }
 
   tinygltf::TinyGLTF loader;
   loader.SetImageLoader(keepEncoded, nullptr);
+  loader.SetFsCallbacks({&tinygltf::FileExists, &tinygltf::ExpandFilePath, &readReferencedFile, &tinygltf::WriteWholeFile, nullptr});
   tinygltf::Model model;
   std::string err, warn;
   const std::string baseDir = fs::path(path).parent_path().string();

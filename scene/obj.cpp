@@ -12,6 +12,7 @@
 
 #include "scene/gltf.h"
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 namespace {
@@ -32,8 +33,21 @@ Vec3f rgb(const tinyobj::real_t c[3]) { return {float(c[0]), float(c[1]), float(
 
 GltfModel loadObj(const std::string& path) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path, "", "OBJ file not found");
-  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not an OBJ file");
+  // tinyobjloader reads the OBJ and its MTL files line by line, however long: they must be
+  // regular files (a pipe or a device is refused by name before it reads a byte).
+  checkInputFile(path, "OBJ file", false);
+  {
+    std::ifstream obj(path);
+    for (std::string line; std::getline(obj, line);) {
+      const size_t at = line.find_first_not_of(" \t");
+      if (at == std::string::npos || line.compare(at, 7, "mtllib ") != 0) continue;
+      std::istringstream names(line.substr(at + 7));
+      for (std::string name; names >> name;) {
+        const fs::path mtl = fs::path(path).parent_path() / name;
+        if (fs::exists(mtl, ec)) checkInputFile(mtl.string(), "MTL file", false);
+      }
+    }
+  }
   tinyobj::ObjReaderConfig config;
   config.triangulate = true;
   config.vertex_color = false;

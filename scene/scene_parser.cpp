@@ -9,6 +9,7 @@
 
 #include "scene/scene.h"
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 namespace {
@@ -536,14 +537,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
 }
 
 SceneDesc parseSceneFile(const std::string& path) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path, "", "scene file not found");
-  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a scene file");
-  std::ifstream in(path);
-  if (!in) throw InputError(path, "", "cannot open scene file");
-  std::stringstream text;
-  text << in.rdbuf();
-  return parseSceneText(text.str(), path);
+  return parseSceneText(readWholeFile(path, "scene file", kSceneStreamCap), path);
 }
 
 }  // namespace iso

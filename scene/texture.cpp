@@ -11,6 +11,7 @@
 #include <iterator>
 
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 namespace {
@@ -186,6 +187,7 @@ Texture Texture::fromTexels(int width, int height, std::vector<Vec4f> texels) {
 Texture Texture::loadFile(const std::string& path) {
   // A PNG is read from memory after the checks textures get (the magic decides, not the name).
   std::vector<unsigned char> png;
+  checkInputFile(path, "image", false);
   {
     std::ifstream file(path, std::ios::binary);
     char magic[8] = {0};

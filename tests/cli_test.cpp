@@ -5,11 +5,17 @@
 #include <algorithm>
 #include <nlohmann/json.hpp>
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <thread>
 
 #include "scene/gltf.h"
 #include "renderer/film.h"
@@ -538,18 +544,17 @@ TEST(Cli, ProgressBarOnlyOnATerminal) {
   EXPECT_NE(piped.err.find("rays:"), std::string::npos) << piped.err;  // the summary still is
 }
 
-// Ctrl-C stops at the next tile boundary, writes what is finished, and exits with 130.
+// Ctrl-C stops at the next tile boundary, writes what is finished, and exits with 130. The
+// render is long by its work (a million samples per pixel); the signal goes once isotrace says
+// it has begun rendering.
 TEST(Cli, SigintWritesTheFinishedSamplesAndExits130) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/m.json", mixedScene());
-  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 1000000 " +
-                          "--resolution 64x48 --quiet -o " + dir + "/i.exr >" + dir + "/out.txt 2>" + dir + "/err.txt & " +
-                          "pid=$!; sleep 1.5; kill -INT $pid; wait $pid; echo $? > " + dir + "/status.txt";
-  ASSERT_EQ(std::system(("bash -c '" + cmd + "'").c_str()), 0);
-  std::ifstream status(dir + "/status.txt");
-  int code = -1;
-  status >> code;
-  EXPECT_EQ(code, 130);
+  test::Process render(std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 1000000 " +
+                       "--resolution 64x48 -o " + dir + "/i.exr >" + dir + "/out.txt");
+  ASSERT_TRUE(render.waitForErr("isotrace: rendering 64x48")) << render.err();
+  render.signal(SIGINT);
+  EXPECT_EQ(render.wait(), 130) << render.err();
   std::map<std::string, std::string> metadata;
   const auto data = readExr(dir + "/i.exr", nullptr, &metadata);
   ASSERT_EQ(data.size(), 64u * 48u * 3u);
@@ -646,22 +651,42 @@ TEST(Cli, ConcurrentStatsWritesDoNotRace) {
 }
 
 // A stop signal while the scene loads writes nothing and says so (it used to kill silently).
+// The volume is a named pipe: isotrace blocks loading it until the test, having sent the
+// signal, writes the samples.
 TEST(Cli, InterruptWhileLoadingWritesNothing) {
   const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", R"({"volumes": [{"procedural": {"field": "gyroid", "resolution": [400, 400, 400]},
-    "isosurfaces": [{"value": 0}]}]})");
-  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json --quiet -o " + dir + "/t.png >/dev/null 2>" +
-                          dir + "/err.txt & pid=$!; sleep 0.8; kill -INT $pid; wait $pid; echo $?";
-  FILE* p = popen(cmd.c_str(), "r");
-  ASSERT_TRUE(p);
-  char buf[64] = {0};
-  ASSERT_TRUE(std::fgets(buf, sizeof buf, p));
-  pclose(p);
-  std::ifstream in(dir + "/err.txt");
-  const std::string err((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  EXPECT_EQ(std::atoi(buf), 130) << err;
-  EXPECT_NE(err.find("interrupted while loading: no image written"), std::string::npos) << err;
+  const std::string pipe = dir + "/v.raw";
+  ASSERT_EQ(mkfifo(pipe.c_str(), 0600), 0);
+  test::writeText(dir + "/s.json", R"({"volumes": [{"file": "v.raw", "dims": [16, 16, 16], "type": "uint8",
+    "isosurfaces": [{"value": 100}]}]})");
+  test::Process render(std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json -o " + dir + "/t.png >/dev/null");
+  const int fd = open(pipe.c_str(), O_WRONLY);  // returns once isotrace has opened the pipe: it is loading
+  ASSERT_GE(fd, 0);
+  render.signal(SIGINT);
+  std::string samples(16 * 16 * 16, '\0');
+  for (size_t i = 0; i < samples.size(); ++i) samples[i] = char(i % 200);
+  EXPECT_EQ(write(fd, samples.data(), samples.size()), ssize_t(samples.size()));
+  close(fd);
+  EXPECT_EQ(render.wait(), 130) << render.err();
+  EXPECT_NE(render.err().find("interrupted while loading: no image written"), std::string::npos) << render.err();
   EXPECT_FALSE(fs::exists(dir + "/t.png"));
+}
+
+// A job started with `&` by a script begins with SIGINT ignored (so that Ctrl-C at the terminal
+// reaches the foreground job only); isotrace keeps that ignore, and SIGTERM still stops it.
+TEST(Cli, AnInheritedSigintIgnoreIsKept) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/m.json", mixedScene());
+  test::Process render("bash -c 'trap \"\" INT; exec " + std::string(ISOTRACE_BINARY) + " render " + dir +
+                       "/m.json --integrator path --spp 1000000 --resolution 64x48 -o " + dir + "/t.png >/dev/null'");
+  ASSERT_TRUE(render.waitForErr("isotrace: rendering 64x48")) << render.err();
+  // Both pending at once are taken in number order, SIGINT first: the message names the one
+  // that stopped the render.
+  render.signal(SIGINT);
+  render.signal(SIGTERM);
+  EXPECT_EQ(render.wait(), 130) << render.err();
+  EXPECT_NE(render.err().find("interrupted by SIGTERM: wrote the image"), std::string::npos) << render.err();
+  EXPECT_TRUE(fs::exists(dir + "/t.png"));
 }
 
 // SIGTERM stops a render like SIGINT: the image of the samples so far is written whole, the
@@ -669,18 +694,129 @@ TEST(Cli, InterruptWhileLoadingWritesNothing) {
 TEST(Cli, SigtermWritesTheFinishedSamples) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/m.json", mixedScene());
-  const std::string cmd = std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 100000 " +
-                          "--resolution 64x48 --quiet -o " + dir + "/t.png >/dev/null 2>" + dir + "/err.txt & pid=$!; sleep 1.5; "
-                          "kill -TERM $pid; wait $pid; echo $?";
-  FILE* p = popen(cmd.c_str(), "r");
-  ASSERT_TRUE(p);
-  char buf[64] = {0};
-  ASSERT_TRUE(std::fgets(buf, sizeof buf, p));
-  pclose(p);
-  EXPECT_EQ(std::atoi(buf), 130);
+  test::Process render(std::string(ISOTRACE_BINARY) + " render " + dir + "/m.json --integrator path --spp 100000 " +
+                       "--resolution 64x48 -o " + dir + "/t.png >/dev/null");
+  ASSERT_TRUE(render.waitForErr("isotrace: rendering 64x48")) << render.err();
+  render.signal(SIGTERM);
+  EXPECT_EQ(render.wait(), 130) << render.err();
+  EXPECT_NE(render.err().find("interrupted by SIGTERM: wrote the image"), std::string::npos) << render.err();
   EXPECT_TRUE(fs::exists(dir + "/t.png"));
   for (const auto& entry : fs::directory_iterator(dir))
     EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+}
+
+// Every path a scene names, when it is a device (here a link to /dev/zero, which a reader would
+// read forever): refused by name before a byte is read, by `info` as by `render`.
+TEST(Cli, DevicesAreRefusedByNameByEveryReader) {
+  const std::string dir = test::scratchDir();
+  auto zero = [&](const std::string& name) { fs::create_symlink("/dev/zero", dir + "/" + name); };
+  const std::string quad = R"({"shape": "quad"})";
+  const std::string iso = R"(, "isosurfaces": [{"value": 1}])";
+  std::vector<std::pair<std::string, std::string>> cases;  // scene text, the path refused
+  zero("scene.json");
+  for (const char* mesh : {"m.glb", "m.gltf", "m.obj"}) {
+    zero(mesh);
+    cases.push_back({R"({"meshes": [{"file": ")" + std::string(mesh) + R"("}]})", mesh});
+  }
+  zero("b.bin");
+  test::writeText(dir + "/buffer.gltf", R"({"asset": {"version": "2.0"}, "buffers": [{"uri": "b.bin", "byteLength": 12}]})");
+  cases.push_back({R"({"meshes": [{"file": "buffer.gltf"}]})", "b.bin"});
+  zero("z.mtl");
+  test::writeText(dir + "/with_mtl.obj", "mtllib z.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+  cases.push_back({R"({"meshes": [{"file": "with_mtl.obj"}]})", "z.mtl"});
+  cases.push_back({R"({"volumes": [{"file": "v.raw", "dims": [4, 4, 4], "type": "uint8")" + iso + "}]}", "v.raw"});
+  zero("v.raw");
+  for (const char* volume : {"v.raw.gz", "v.nrrd", "v.mhd", "v.vtk", "v.nii", "v.nii.gz", "v.dcm", "v.vdb"}) {
+    zero(volume);
+    cases.push_back({R"({"volumes": [{"file": ")" + std::string(volume) + R"(")" + iso + "}]}", volume});
+  }
+  zero("sky.png");
+  cases.push_back({R"({"meshes": [)" + quad + R"(], "lights": [{"type": "environment", "file": "sky.png"}]})", "sky.png"});
+  int k = 0;
+  for (const auto& [text, refused] : cases) {
+    const std::string scene = dir + "/s" + std::to_string(k++) + ".json";
+    test::writeText(scene, text);
+    for (const char* command : {"info ", "render --quiet -o "}) {
+      const std::string args = std::string(command) + (command[0] == 'r' ? dir + "/out.png " : "") + scene;
+      const auto r = runIsotrace(args);
+      EXPECT_EQ(r.status, 2) << args << "\n" << r.err;
+      EXPECT_NE(r.err.find(dir + "/" + refused), std::string::npos) << text << "\n" << r.err;
+      EXPECT_NE(r.err.find("is a character device"), std::string::npos) << text << "\n" << r.err;
+      EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+      EXPECT_FALSE(fs::exists(dir + "/out.png"));
+    }
+  }
+  // A DICOM folder lists regular files only: a device in it is passed over, never read.
+  fs::create_directories(dir + "/series");
+  fs::create_symlink("/dev/zero", dir + "/series/x.dcm");
+  test::writeText(dir + "/series.json", R"({"volumes": [{"file": "series")" + iso + "}]}");
+  const auto folder = runIsotrace("info " + dir + "/series.json");
+  EXPECT_EQ(folder.status, 2);
+  EXPECT_NE(folder.err.find(dir + "/series: holds no DICOM files"), std::string::npos) << folder.err;
+  const auto r = runIsotrace("info " + dir + "/scene.json");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find(dir + "/scene.json: is a character device, not a scene file"), std::string::npos) << r.err;
+}
+
+// A named pipe fed without end: readers that stream read no further than the format's size
+// (a raw volume's dims) or their stated cap (a scene's JSON), then refuse it in one line;
+// readers that need a regular file refuse the pipe by name without opening it.
+TEST(Cli, NamedPipesAreReadNoFurtherThanTheFormatAllows) {
+  const std::string dir = test::scratchDir();
+  std::signal(SIGPIPE, SIG_IGN);  // the writer learns of the reader's end by EPIPE
+  // Writes zeros into the pipe until the reader closes it; the bytes it wrote.
+  auto endlessWriter = [](const std::string& pipe, uint64_t& written) {
+    return std::thread([pipe, &written] {
+      const int fd = open(pipe.c_str(), O_WRONLY);
+      if (fd < 0) return;
+      const std::string chunk(1 << 16, '\0');
+      for (ssize_t n; (n = write(fd, chunk.data(), chunk.size())) > 0;) written += uint64_t(n);
+      close(fd);
+    });
+  };
+  // After isotrace has ended: a writer still waiting for a reader is let go.
+  auto release = [](const std::string& pipe) {
+    const int fd = open(pipe.c_str(), O_RDONLY | O_NONBLOCK);
+    if (fd >= 0) close(fd);
+  };
+  {
+    const std::string pipe = dir + "/v.raw";
+    ASSERT_EQ(mkfifo(pipe.c_str(), 0600), 0);
+    test::writeText(dir + "/raw.json", R"({"volumes": [{"file": "v.raw", "dims": [16, 16, 16], "type": "uint8",
+      "isosurfaces": [{"value": 1}]}]})");
+    uint64_t written = 0;
+    std::thread writer = endlessWriter(pipe, written);
+    const auto r = runIsotrace("info " + dir + "/raw.json");
+    release(pipe);
+    writer.join();
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_NE(r.err.find(pipe + ": "), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("4096 bytes"), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    // dims 16^3: 4096 bytes, with room for gzip framing (65536 + 16), then what the pipe holds.
+    EXPECT_LE(written, uint64_t(4096 + 16 + 65537 + (1 << 16) + (1 << 16)));
+  }
+  {
+    const std::string pipe = dir + "/scene.json";
+    ASSERT_EQ(mkfifo(pipe.c_str(), 0600), 0);
+    uint64_t written = 0;
+    std::thread writer = endlessWriter(pipe, written);
+    const auto r = runIsotrace("info " + pipe);
+    release(pipe);
+    writer.join();
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_NE(r.err.find(pipe + ": a scene file read from a named pipe may hold at most 67108864 bytes"), std::string::npos)
+        << r.err;
+    EXPECT_LE(written, (uint64_t(64) << 20) + 3 * (1 << 16));
+  }
+  for (const char* name : {"p.nii", "p.vdb", "p.dcm"}) {
+    const std::string pipe = dir + "/" + name;
+    ASSERT_EQ(mkfifo(pipe.c_str(), 0600), 0);
+    test::writeText(dir + "/p.json", R"({"volumes": [{"file": ")" + std::string(name) + R"(", "isosurfaces": [{"value": 1}]}]})");
+    const auto r = runIsotrace("info " + dir + "/p.json");
+    EXPECT_EQ(r.status, 2) << name << ": " << r.err;
+    EXPECT_NE(r.err.find(pipe + ": is a named pipe"), std::string::npos) << r.err;
+  }
 }
 
 TEST(Cli, MeshExportsTheSurfaceInWorldSpace) {

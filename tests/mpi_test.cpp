@@ -4,7 +4,12 @@
 
 #include <nlohmann/json.hpp>
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <chrono>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -133,10 +138,22 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
   EXPECT_EQ(r.err.find("isotrace:", r.err.find(expected) + 1), std::string::npos) << "one line from isotrace: " << r.err;
   EXPECT_FALSE(fs::exists(image));
 
-  const auto crash = runCommand(mpirun(1) + ISOTRACE_BINARY + common + " --spp 100000 " + dir + "/good.json : -np 1 " +
-                                "bash -c 'sleep 1; kill -SEGV $$'");
-  EXPECT_NE(crash.status, 0) << crash.err;
-  EXPECT_NE(crash.err.find("rank 1"), std::string::npos) << crash.err;
+  // Rank 1 crashes while it loads: its volume is a named pipe, so the test knows it is loading
+  // (past MPI's start on every rank) once the pipe opens for writing.
+  const std::string pipe = dir + "/v.raw";
+  ASSERT_EQ(mkfifo(pipe.c_str(), 0600), 0);
+  test::writeText(dir + "/crash.json", R"({"volumes": [{"file": "v.raw", "dims": [16, 16, 16], "type": "uint8",
+    "isosurfaces": [{"value": 100}]}]})");
+  test::Process crash(mpirun(1) + ISOTRACE_BINARY + common + " --spp 100000 " + dir + "/good.json : -np 1 " +
+                      ISOTRACE_BINARY + common + " " + dir + "/crash.json");
+  const int fd = open(pipe.c_str(), O_WRONLY);
+  ASSERT_GE(fd, 0);
+  const std::vector<pid_t> loading = test::processesWithArgument(ISOTRACE_BINARY, dir + "/crash.json");
+  ASSERT_EQ(loading.size(), 1u);
+  kill(loading[0], SIGSEGV);
+  close(fd);
+  EXPECT_NE(crash.wait(), 0) << crash.err();
+  EXPECT_NE(crash.err().find("rank 1"), std::string::npos) << crash.err();
   EXPECT_FALSE(fs::exists(image));
   for (const auto& entry : fs::directory_iterator(dir))
     EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
@@ -150,17 +167,12 @@ TEST(Mpi, InterruptWritesThePartialImage) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/s.json", pathScene());
   const std::string image = dir + "/t.exr";
-  // A signal that falls inside loading (a busy machine) ends the run without an image, by
-  // design; then the test tries again, waiting longer.
-  for (int delay : {8, 30}) {
-    const std::string cmd = mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path " +
-                            "--spp 1000000 --threads 1 --quiet -o " + image + " >/dev/null 2>" + dir +
-                            "/err.txt & pid=$!; sleep " + std::to_string(delay) + "; kill -INT $pid; wait $pid";
-    EXPECT_NE(runCommand("bash -c '" + cmd + "'").status, 0) << "mpirun ends with an error status after a signal";
-    if (fs::exists(image)) break;
-    std::ifstream err(dir + "/err.txt");
-    std::cerr << "no image after " << delay << " s; stderr: " << std::string(std::istreambuf_iterator<char>(err), {}) << "\n";
-  }
+  // The signal goes once rank 0 says the render has begun (every rank has loaded by then).
+  test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path " +
+                    "--spp 1000000 --threads 1 -o " + image + " >/dev/null");
+  ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();
+  run.signal(SIGINT);
+  EXPECT_NE(run.wait(), 0) << "mpirun ends with an error status after a signal";
   std::map<std::string, std::string> metadata;
   const std::vector<float> pixels = readExr(image, nullptr, &metadata);
   ASSERT_FALSE(pixels.empty());

@@ -2,7 +2,15 @@
 
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <csignal>
 
 #include <filesystem>
 #include <fstream>
@@ -33,6 +41,109 @@ static std::string slurp(const std::string& path) {
   std::stringstream s;
   s << in.rdbuf();
   return s.str();
+}
+
+Process::Process(const std::string& command) {
+  int fds[2];
+  if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("pipe failed");
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_adddup2(&actions, fds[1], 2);
+  posix_spawnattr_t attr;
+  posix_spawnattr_init(&attr);
+  sigset_t defaults, none;
+  sigemptyset(&defaults);
+  sigaddset(&defaults, SIGINT);
+  sigaddset(&defaults, SIGTERM);
+  sigaddset(&defaults, SIGPIPE);
+  sigemptyset(&none);
+  posix_spawnattr_setsigdefault(&attr, &defaults);
+  posix_spawnattr_setsigmask(&attr, &none);
+  posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETSIGDEF | POSIX_SPAWN_SETSIGMASK);
+  const std::string line = "exec " + command;
+  char* argv[] = {const_cast<char*>("sh"), const_cast<char*>("-c"), const_cast<char*>(line.c_str()), nullptr};
+  const int rc = posix_spawn(&m_pid, "/bin/sh", &actions, &attr, argv, environ);
+  posix_spawn_file_actions_destroy(&actions);
+  posix_spawnattr_destroy(&attr);
+  close(fds[1]);
+  m_errFd = fds[0];
+  if (rc != 0) throw std::runtime_error("posix_spawn failed");
+}
+
+Process::~Process() {
+  if (m_pid > 0) {
+    kill(m_pid, SIGKILL);
+    waitpid(m_pid, nullptr, 0);
+  }
+  if (m_errFd >= 0) close(m_errFd);
+}
+
+bool Process::readSome(double seconds) {
+  if (m_errFd < 0) return false;
+  pollfd p{m_errFd, POLLIN, 0};
+  if (poll(&p, 1, int(seconds * 1000)) <= 0) return false;
+  char buffer[4096];
+  const ssize_t n = read(m_errFd, buffer, sizeof buffer);
+  if (n <= 0) {
+    close(m_errFd);
+    m_errFd = -1;
+    return false;
+  }
+  m_err.append(buffer, size_t(n));
+  return true;
+}
+
+bool Process::waitForErr(const std::string& text, double safetySeconds) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(safetySeconds);
+  while (m_err.find(text) == std::string::npos) {
+    const double left = std::chrono::duration<double>(end - std::chrono::steady_clock::now()).count();
+    if (left <= 0 || !readSome(left)) return m_err.find(text) != std::string::npos;
+  }
+  return true;
+}
+
+void Process::signal(int sig) {
+  if (m_pid > 0) kill(m_pid, sig);
+}
+
+int Process::wait(double safetySeconds) {
+  if (m_pid <= 0) return m_status;
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(safetySeconds);
+  while (m_errFd >= 0) {
+    const double left = std::chrono::duration<double>(end - std::chrono::steady_clock::now()).count();
+    if (left <= 0) break;
+    readSome(left);
+  }
+  if (m_errFd >= 0) {  // still running after the safety net
+    kill(m_pid, SIGKILL);
+    waitpid(m_pid, nullptr, 0);
+    m_pid = -1;
+    return m_status = -1;
+  }
+  int raw = 0;
+  waitpid(m_pid, &raw, 0);
+  m_pid = -1;
+  m_status = WIFEXITED(raw) ? WEXITSTATUS(raw) : WIFSIGNALED(raw) ? 128 + WTERMSIG(raw) : -1;
+  return m_status;
+}
+
+std::vector<pid_t> processesWithArgument(const std::string& program, const std::string& argument) {
+  std::vector<pid_t> found;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator("/proc", ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.empty() || name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream in(entry.path() / "cmdline", std::ios::binary);
+    std::string first;
+    std::getline(in, first, '\0');
+    if (first != program) continue;
+    for (std::string word; std::getline(in, word, '\0');)
+      if (word == argument) {
+        found.push_back(pid_t(std::stol(name)));
+        break;
+      }
+  }
+  return found;
 }
 
 CommandResult runIsotrace(const std::string& args) { return runCommand(std::string(ISOTRACE_BINARY) + " " + args); }

@@ -2,6 +2,8 @@
 // Helpers shared by the tests: data paths, a seeded RNG, running the isotrace binary, bad input.
 #include <gtest/gtest.h>
 
+#include <sys/types.h>
+
 #include <cstdio>
 #include <map>
 #include <random>
@@ -22,6 +24,40 @@ struct CommandResult {
 CommandResult runIsotrace(const std::string& args);
 // Runs a shell command line, capturing stdout and stderr.
 CommandResult runCommand(const std::string& command);
+
+// A process the test talks to while it runs: a shell command line, started with SIGINT and
+// SIGTERM at their default actions and none blocked (as from a terminal, not as a job that a
+// non-interactive shell starts with `&`, which begins with SIGINT ignored). Its stderr comes to
+// the test through a pipe, so the test can wait for what the process says (an event, never a
+// time); stdout goes wherever the command line sends it. The destructor kills and reaps a
+// process still running.
+class Process {
+ public:
+  explicit Process(const std::string& command);
+  ~Process();
+  Process(const Process&) = delete;
+  Process& operator=(const Process&) = delete;
+
+  // Reads stderr until it holds `text`: true then; false if stderr closed first (the process
+  // ended) or after `safetySeconds` (a safety net against a hang, not a timing assumption).
+  bool waitForErr(const std::string& text, double safetySeconds = 300);
+  void signal(int sig);
+  // Waits for the end (reading the rest of stderr): the exit status, or 128 + the signal that
+  // ended it. A process still running after `safetySeconds` is killed and -1 returned.
+  int wait(double safetySeconds = 300);
+  const std::string& err() const { return m_err; }
+  pid_t pid() const { return m_pid; }
+
+ private:
+  bool readSome(double seconds);  // false at end of stderr or after `seconds`
+  pid_t m_pid = -1;
+  int m_errFd = -1;
+  int m_status = -1;
+  std::string m_err;
+};
+
+// The processes running `program` (their first word) with `argument` as one of the others.
+std::vector<pid_t> processesWithArgument(const std::string& program, const std::string& argument);
 
 // A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky (32x24).
 std::string mixedScene();

@@ -2,9 +2,11 @@
 """`isotrace view` in a real browser: Debian's chromium, headless, driven by chromium-driver
 through python3-selenium (Debian's python, which has selenium).
 
-Checks: the page loads with no console errors; the image appears and refines (spp rises to
-the scene's); moving an iso slider changes the surface and the image; the integrator switch
-works; Save writes files that `isotrace render` turns into the same picture.
+Checks: the page loads with no console errors; the image appears; moving an iso slider changes
+the surface and the image, which refines in steps (the page's log of the frames it received
+shows every pass of the new version, in order, up to the scene's spp); the integrator switch
+works; Save writes files that `isotrace render` turns into the same picture. Nothing waits for
+a time: every wait is for an event the page shows, with a generous limit as a safety net.
 Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
 """
 import json
@@ -13,7 +15,6 @@ import re
 import subprocess
 import sys
 import tempfile
-import time
 
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
@@ -64,12 +65,24 @@ def main():
             text = driver.find_element(By.ID, "spp").text
             return int(text) if text.isdigit() else -1
 
-        # The image appears and refines up to the scene's spp.
+        def frames_of(version):
+            """The frames the page received for `version`: [(spp, preview)] in order."""
+            log = d_log()
+            return [(f["spp"], f["preview"]) for f in log if f["version"] == version]
+
+        def d_log():
+            return driver.execute_script("return frameLog;")
+
+        def server_state():
+            return driver.execute_script("return fetch('/api/state').then(r => r.json());")
+
+        def finished(version):
+            """True once the page has the last frame (the scene's spp) of `version`."""
+            return any(s >= 64 and not p for s, p in frames_of(version))
+
+        # The image appears, and the first version renders to the scene's spp.
         wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src").startswith("data:image/jpeg"))
-        seen = set()
-        wait.until(lambda d: seen.add(spp()) or spp() >= 64)
-        if len([s for s in seen if s > 0]) < 2:
-            fail("the image did not refine in steps: saw spp %s" % sorted(seen))
+        wait.until(lambda d: finished(server_state()["version"]))
         first = driver.find_element(By.ID, "view").get_attribute("src")
 
         # An iso slider: the value moves, the image changes, the server has the new value.
@@ -81,19 +94,30 @@ def main():
         # (the slider snaps to its steps: 0.35 to within one)
         wait.until(lambda d: abs(d.execute_script(
             "return fetch('/api/state').then(r => r.json()).then(s => s.surfaces[0].value)") - 0.35) < 1e-3)
-        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src") != first and spp() >= 64)
+        slid = server_state()["version"]
+        wait.until(lambda d: finished(slid))
+        if d_log()[-1]["version"] != slid:
+            fail("a frame of another version came after the slider's: %s" % d_log())
+        passes = [s for s, p in frames_of(slid) if not p]
+        if len(passes) < 2 or passes != sorted(set(passes)) or passes[-1] != 64:
+            fail("the image did not refine in steps up to 64 spp: the page saw %s" % frames_of(slid))
         after_slider = driver.find_element(By.ID, "view").get_attribute("src")
+        if after_slider == first:
+            fail("the image did not change with the iso value")
 
         # The integrator switch.
         Select(driver.find_element(By.ID, "integrator")).select_by_value("normals")
         wait.until(lambda d: d.execute_script(
             "return fetch('/api/state').then(r => r.json()).then(s => s.integrator)") == "normals")
-        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src") != after_slider and spp() >= 64)
+        wait.until(lambda d: finished(server_state()["version"]))
+        if driver.find_element(By.ID, "view").get_attribute("src") == after_slider:
+            fail("the image did not change with the integrator")
 
         if screenshot:
             Select(driver.find_element(By.ID, "integrator")).select_by_value("direct")
-            time.sleep(0.3)
-            wait.until(lambda d: spp() >= 64)
+            wait.until(lambda d: d.execute_script(
+                "return fetch('/api/state').then(r => r.json()).then(s => s.integrator)") == "direct")
+            wait.until(lambda d: finished(server_state()["version"]))
             driver.save_screenshot(screenshot)
 
         # Save: the scene and the images; `isotrace render` of the scene gives the same picture.

@@ -17,6 +17,7 @@
 #include <sstream>
 
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 #include "volume/loaders.h"
 
 namespace iso {
@@ -174,6 +175,7 @@ VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
   directory.Load(folder, false);
   std::vector<std::string> files = directory.GetFilenames();
   std::sort(files.begin(), files.end());
+  for (const std::string& f : files) checkInputFile(f, "DICOM file", false);  // a pipe or device: refused by name
   gdcm::Scanner scanner;
   for (const gdcm::Tag& t : {kSeriesUid, kPosition, kOrientation, kModality, kRows, kColumns}) scanner.AddTag(t);
   if (!files.empty() && !scanner.Scan(files)) throw InputError(folder, "", "cannot scan the folder's files");
@@ -297,6 +299,7 @@ VolumeFile readHere(const std::string& path, const std::string& series) {
 VolumeFile loadDicom(const std::string& path, const std::string& series) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
+  if (!fs::is_directory(path, ec)) checkInputFile(path, "DICOM file", false);
   if (!fs::is_directory(path, ec) && !series.empty())
     throw InputError(path, "", "\"series\" chooses among the series of a folder; this is one file");
   // Debian's GDCM aborts on an assertion for some malformed files: it reads in a child process.

@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 extern "C" {
 #include <nifti2_io.h>
@@ -41,15 +42,12 @@ bool endsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
-// Opens a file for reading and tells its size; errors name the file.
+// Opens a regular file for reading and tells its size; errors name the file (a named pipe,
+// a device, a directory are refused: the callers seek or read twice).
 std::ifstream openFile(const std::string& path, size_t& size) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
-  if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
+  size = size_t(checkInputFile(path, "file", false).size);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, "", "cannot open file");
-  size = fs::file_size(path, ec);
-  if (ec) throw InputError(path, "", "cannot read the file size");
   return in;
 }
 
@@ -59,12 +57,10 @@ void readExactly(std::ifstream& in, uint8_t* out, size_t size, const std::string
   if (in.bad() || size_t(in.gcount()) != size) throw InputError(path, "", "read error");
 }
 
-Bytes readFile(const std::string& path) {
-  size_t size;
-  std::ifstream in = openFile(path, size);
-  Bytes data(size);
-  readExactly(in, data.data(), size, path);
-  return data;
+// A whole file (or a named pipe, up to a cap that the error states).
+Bytes readFile(const std::string& path, uint64_t streamCap = kVolumeStreamCap) {
+  const std::string text = readWholeFile(path, "file", streamCap);
+  return Bytes(text.begin(), text.end());
 }
 
 // Inflates gzip or zlib streams (windowBits 32+15 detects either), including concatenated
@@ -881,8 +877,7 @@ VolumeFile loadNifti(const std::string& path) {
 // Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
 // memory is the grid itself); gzip-compressed ones are inflated straight into it.
 Grid loadRaw(const std::string& path, const RawLayout& layout) {
-  size_t fileSize;
-  std::ifstream in = openFile(path, fileSize);
+  const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
   ScalarType type;
   const bool named = parseSciVisName(path, dims, type);
@@ -894,6 +889,24 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
     throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
   checkDims(dims, path, "");
   const size_t expected = checkedBytes(dims, type, path);
+  if (stream) {
+    // A named pipe is read no further than the samples allow (with room for gzip's few bytes
+    // of framing and stored blocks), then checked like a file.
+    const std::string text = readWholeFile(path, "raw volume of " + layoutName(dims, type) + " (" + std::to_string(expected) + " bytes)",
+                                           uint64_t(expected) + expected / 256 + 65536);
+    const Bytes data(text.begin(), text.end());
+    const bool gzip = data.size() >= 2 && data[0] == 0x1f && data[1] == 0x8b;
+    if (!gzip && data.size() != expected) throw InputError(path, "", sizeMismatch(dims, type, data.size(), expected));
+    std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
+    if (gzip)
+      inflateInto(data, samples.get(), expected, dims, type, path);
+    else
+      std::memcpy(samples.get(), data.data(), expected);
+    finishSamples(samples.get(), type, dims, layout.bigEndian, path);
+    return Grid(dims, type, std::shared_ptr<const void>(samples, samples.get()));
+  }
+  size_t fileSize;
+  std::ifstream in = openFile(path, fileSize);
   char magic[2] = {0, 0};
   in.read(magic, 2);
   const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;

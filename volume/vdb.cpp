@@ -11,6 +11,7 @@
 #include <map>
 
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 #include "volume/loaders.h"
 
 namespace iso {
@@ -192,6 +193,7 @@ VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool de
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
+  checkInputFile(path, "file", false);
   // OpenVDB trusts the sizes in its streams (the fuzzer makes it ask for 2^56 bytes): it reads
   // in a child process.
   return readInChildProcess(path, "OpenVDB", [&] { return readVdb(path, gridName, dense); });
