@@ -5,7 +5,7 @@
 #include <cstdlib>
 #include <string>
 
-#include "bench/accuracy.h"
+#include "accuracy/accuracy.h"
 #include "volume/loaders.h"
 #include "volume/procedural.h"
 

@@ -1,8 +1,8 @@
-// Prints the numerical stress suite (bench/stress.h) for every intersector:
+// Prints the numerical stress suite (accuracy/stress.h) for every intersector:
 //   build/bench/stress
 #include <cstdio>
 
-#include "bench/stress.h"
+#include "accuracy/stress.h"
 
 using namespace iso;
 

@@ -8,7 +8,8 @@
 # DICOM test files; libgdcm-dev reads DICOM, libtinyobjloader-dev OBJ meshes; Open MPI
 # (libopenmpi-dev, openmpi-bin: mpirun) renders on many ranks; libcpp-httplib-dev serves
 # `isotrace view`, whose page the tests drive in Debian's chromium with chromium-driver and
-# python3-selenium (no browser is downloaded).
+# python3-selenium (no browser is downloaded); stress-ng loads the machine for
+# scripts/soak_tests.sh --loaded.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,7 +19,8 @@ packages=(build-essential cmake pkg-config
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev
           libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
-          libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium)
+          libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium
+          stress-ng)
 
 missing=()
 for p in "${packages[@]}"; do

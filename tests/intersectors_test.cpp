@@ -2,7 +2,7 @@
 
 #include <random>
 
-#include "bench/accuracy.h"
+#include "accuracy/accuracy.h"
 #include "tests/test_util.h"
 #include "volume/loaders.h"
 #include "volume/procedural.h"

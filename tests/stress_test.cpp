@@ -1,11 +1,11 @@
-// The numerical stress suite (bench/stress.h), one named test per case: `isolation` has no
+// The numerical stress suite (accuracy/stress.h), one named test per case: `isolation` has no
 // misses, wrong roots, NaNs or parity errors; where the other intersectors fail by design
 // (docs/BENCHMARKS.md explains why), the tests assert that the failure shows.
 #include <gtest/gtest.h>
 
 #include <map>
 
-#include "bench/stress.h"
+#include "accuracy/stress.h"
 
 namespace iso {
 namespace {

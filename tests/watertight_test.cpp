@@ -1,8 +1,8 @@
-// Watertightness under secondary rays (bench/watertight.h, `isotrace watertight`): with the
+// Watertightness under secondary rays (accuracy/watertight.h, `isotrace watertight`): with the
 // renderer's own spawned rays, fixed seeds, at the origin and 1e5 away.
 #include <gtest/gtest.h>
 
-#include "bench/watertight.h"
+#include "accuracy/watertight.h"
 #include "tests/test_util.h"
 
 namespace iso {

@@ -1,4 +1,4 @@
-#include "bench/accuracy.h"
+#include "accuracy/accuracy.h"
 
 #include <algorithm>
 #include <chrono>

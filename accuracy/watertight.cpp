@@ -1,4 +1,4 @@
-#include "bench/watertight.h"
+#include "accuracy/watertight.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>

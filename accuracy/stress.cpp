@@ -1,4 +1,4 @@
-#include "bench/stress.h"
+#include "accuracy/stress.h"
 
 #include <cmath>
 #include <limits>

@@ -1,0 +1,124 @@
+// `isotrace info`: what a scene holds, what will be built and what is skipped.
+#include <CLI/CLI.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+
+#include "renderer/commands.h"
+#include "scene/world.h"
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+const char* materialTypeName(MaterialType t) {
+  switch (t) {
+    case MaterialType::Diffuse: return "diffuse";
+    case MaterialType::MetallicRoughness: return "metallic_roughness";
+    case MaterialType::Conductor: return "conductor";
+    case MaterialType::Dielectric: return "dielectric";
+    case MaterialType::Emissive: return "emissive";
+  }
+  return "?";
+}
+
+const char* lightKindName(Light::Kind k) {
+  switch (k) {
+    case Light::Kind::Point: return "point";
+    case Light::Kind::Spot: return "spot";
+    case Light::Kind::Directional: return "directional";
+    case Light::Kind::Environment: return "environment";
+    case Light::Kind::Area: return "area (emissive triangles)";
+    case Light::Kind::IsoSurface: return "emissive iso-surface";
+  }
+  return "?";
+}
+
+int info(const std::string& path) {
+  const SceneDesc scene = parseSceneFile(path);
+  World world(scene, scene.settings.intersector);
+  for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+  const RenderSettings& s = scene.settings;
+  std::printf("scene %s\n", path.c_str());
+  std::printf("  film %dx%d, %d spp, integrator %s (max depth %d), intersector %s\n", s.width, s.height, s.spp,
+              s.integrator.c_str(), s.maxDepth, intersectorName(s.intersector).c_str());
+  const CameraDesc& c = world.camera();
+  std::printf("  camera%s%s: position (%g, %g, %g), looking at (%g, %g, %g), fov %g degrees\n",
+              scene.camera.gltfCamera.empty() ? "" : (" (glTF camera " + scene.camera.gltfCamera + ")").c_str(),
+              scene.camera.frameScene ? " (none in the scene: framing its bounds)" : "", c.position.x, c.position.y, c.position.z, c.lookAt.x, c.lookAt.y, c.lookAt.z, c.fov);
+  std::vector<std::string> skipped;
+  if (world.meshes().empty()) skipped.push_back("no meshes: no triangle geometry is built");
+  size_t images = 0;
+  for (size_t m = 0; m < world.meshes().size(); ++m) {
+    const MeshInfo& mi = world.meshes()[m];
+    images += mi.images;
+    std::printf("  mesh %zu: %s\n    %zu triangles in the world (%zu stored), %zu meshes, %zu placements "
+                "(%zu as Embree instances); %zu materials, %zu textures, %zu cameras, %zu lights in the file\n",
+                m, mi.name.c_str(), mi.triangles, mi.uniqueTriangles, mi.meshes, mi.instances, mi.embreeInstances,
+                mi.materials, mi.textures, mi.cameras, mi.lights);
+    if (mi.triangles)
+      std::printf("    bounds (%g, %g, %g) to (%g, %g, %g)\n", mi.lower.x, mi.lower.y, mi.lower.z, mi.upper.x,
+                  mi.upper.y, mi.upper.z);
+  }
+  if (world.volumes().empty()) skipped.push_back("no volumes: no grid, brick or iso-surface work is done");
+  for (size_t v = 0; v < world.volumes().size(); ++v) {
+    const VolumeInfo& vi = world.volumes()[v];
+    const Grid& g = *vi.grid;
+    std::printf("  volume %zu: %s (%s)\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
+                "origin (%g, %g, %g), spacing (%g, %g, %g)%s\n",
+                v, vi.name.c_str(), vi.format.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
+                g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
+                g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
+                vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
+    for (const std::string& note : vi.notes) std::printf("    %s\n", note.c_str());
+    // Where the values lie, to choose iso values by: the range and a few quantiles.
+    const std::vector<double> shares{0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99};
+    const std::vector<double> q = g.quantiles(shares);
+    std::printf("    values %g to %g; quantiles", double(vi.bricks->minValue()), double(vi.bricks->maxValue()));
+    for (size_t i = 0; i < shares.size(); ++i) std::printf("%s %g%%: %.6g", i ? "," : "", shares[i] * 100, q[i]);
+    std::printf("%s\n", g.type() == ScalarType::Float32 ? " (float32: within 1/65536 of the range)" : "");
+    for (const SurfaceInfo& si : world.surfaces())
+      if (si.volume == int(v))
+        std::printf("    iso-surface %g: %zu of %zu bricks active (%.1f%%; %.1f MiB of tight boxes and cell classes), "
+                    "material %s%s\n", si.iso, si.surface->activeBricks().size(), si.surface->totalBricks(),
+                    100.0 * double(si.surface->activeBricks().size()) / double(std::max<size_t>(1, si.surface->totalBricks())),
+                    si.surface->bytes() / 1048576.0, world.materials()[si.material].name.c_str(),
+                    si.surface->activeBricks().empty() ? " (empty: not built)" : "");
+  }
+  std::printf("  materials in use: %zu\n", world.materials().size());
+  const size_t shown = std::min<size_t>(world.materials().size(), 12);
+  for (size_t i = 0; i < shown; ++i) {
+    const Material& m = world.materials()[i];
+    std::printf("    %s: %s%s\n", m.name.c_str(), materialTypeName(m.type), m.emits() ? ", emissive" : "");
+  }
+  if (shown < world.materials().size()) std::printf("    ... and %zu more\n", world.materials().size() - shown);
+  std::printf("  textures decoded: %zu", world.textures().size());
+  if (images > world.textures().size()) std::printf(" (images in glTF files: %zu; unused ones are not decoded)", images);
+  std::printf("\n");
+  std::map<std::string, int> lightCounts;
+  size_t areaTriangles = 0;
+  for (const Light& l : world.lights()) {
+    ++lightCounts[lightKindName(l.kind())];
+    areaTriangles += l.triangleCount();
+  }
+  std::printf("  lights: %zu%s\n", world.lights().size(), world.lights().empty() ? " (direct lighting sees none)" : "");
+  for (const auto& [kind, count] : lightCounts)
+    std::printf("    %d %s%s\n", count, kind.c_str(),
+                kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
+  if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
+  for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
+  std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
+  return 0;
+}
+
+}  // namespace
+
+Command addInfoCommand(CLI::App& app) {
+  auto scene = std::make_shared<std::string>();
+  CLI::App* cmd = app.add_subcommand("info", "what the scene holds and what will be built");
+  cmd->add_option("scene", *scene, "scene file (JSON)")->required();
+  return {cmd, [scene] { return info(*scene); }};
+}
+
+}  // namespace iso

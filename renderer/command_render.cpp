@@ -1,0 +1,535 @@
+// `isotrace render`: a scene to an image (or a sequence, or the direct/global/indirect
+// triple of `compare`), on threads, or on MPI ranks by tiles or frames.
+#include <CLI/CLI.hpp>
+#include <signal.h>
+#include <tbb/task_arena.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <regex>
+#include <sstream>
+
+#include "renderer/commands.h"
+#include "renderer/distributed.h"
+#include "renderer/render.h"
+#include "volume/input_error.h"
+
+namespace iso {
+namespace {
+
+struct RenderFlags {
+  std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap, isoSweep;
+  int spp = 0, threads = -1, maxDepth = 0, frames = 1;
+  std::optional<double> orbit;
+  long long seed = -1;
+  bool quiet = false, alpha = false, allowLarge = false;
+  std::optional<double> exposure, clamp, adaptive;
+};
+
+// --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
+DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
+  DisplaySettings d;
+  if (f.exposure) {
+    if (!(*f.exposure >= -30 && *f.exposure <= 30)) throw InputError("--exposure", "", "expected EV in [-30, 30]");
+    d.exposure = *f.exposure;
+  }
+  if (!f.tonemap.empty() && !parseTonemap(f.tonemap, d.tonemap))
+    throw InputError("--tonemap", "", "unknown curve '" + f.tonemap + "' (known: clamp, aces, filmic)");
+  if (imageFormatFor(output) == ImageFormat::Exr && (f.exposure || !f.tonemap.empty()))
+    std::fprintf(stderr, "isotrace: warning: --exposure and --tonemap shape PNG and JPEG output; %s stays linear\n",
+                 output.c_str());
+  if (f.alpha && imageFormatFor(output) == ImageFormat::Jpeg)
+    throw InputError("--alpha", "", "JPEG has no alpha channel: write .png or .exr");
+  return d;
+}
+
+// Flags override the scene file; each is checked here so that a bad one is an InputError.
+void applyFlags(const RenderFlags& f, SceneDesc& scene) {
+  RenderSettings& s = scene.settings;
+  if (!f.integrator.empty()) {
+    if (!isKnownIntegrator(f.integrator))
+      throw InputError("--integrator", "", "unknown integrator '" + f.integrator + "' (known: " +
+                                               integratorList() + ")");
+    s.integrator = f.integrator;
+  }
+  if (!f.intersector.empty()) {
+    std::string error;
+    if (!parseIntersector(f.intersector, s.intersector, error))
+      throw InputError("--intersector", "", error);
+  }
+  if (!f.resolution.empty()) parseResolution(f.resolution, s.width, s.height);
+  // The film costs ~170 bytes per pixel while rendering (the sums of every layer, in double).
+  if (double(s.width) * s.height > double(kMaxFilmPixels) && !f.allowLarge)
+    throw InputError(f.resolution.empty() ? scene.path : "--resolution", f.resolution.empty() ? "/film" : "",
+                     std::to_string(s.width) + "x" + std::to_string(s.height) + " is more than " +
+                         std::to_string(kMaxFilmPixels) + " pixels (~" +
+                         std::to_string(kMaxFilmPixels * 170 >> 30) + " GiB to render); --allow-large renders it anyway");
+  if (f.spp != 0) s.spp = f.spp;  // CLI11 checked the range; 0 is "not given"
+  if (f.maxDepth != 0) s.maxDepth = f.maxDepth;
+  if (f.threads >= 0) s.threads = f.threads;
+  if (f.seed >= 0) s.seed = uint64_t(f.seed);
+  if (f.clamp) {
+    if (!(*f.clamp >= 0 && *f.clamp <= 1e30)) throw InputError("--clamp", "", "expected a radiance >= 0 (0: off)");
+    s.clampIndirect = *f.clamp;
+  }
+  if (f.adaptive) {
+    if (!(*f.adaptive >= 0 && *f.adaptive <= 1))
+      throw InputError("--adaptive", "", "expected a noise threshold in [0, 1], e.g. 0.02 (0: off)");
+    s.noiseThreshold = *f.adaptive;
+  }
+}
+
+std::vector<std::string> parseAovs(const std::string& list, const std::string& output) {
+  std::vector<std::string> aovs;
+  if (list.empty()) return aovs;
+  size_t start = 0;
+  while (start <= list.size()) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    const std::string name = list.substr(start, comma - start);
+    if (name != "albedo" && name != "normal" && name != "depth" && name != "variance" && name != "samples")
+      throw InputError("--aov", "", "unknown layer '" + name + "' (known: albedo, normal, depth, variance, samples)");
+    if (std::find(aovs.begin(), aovs.end(), name) == aovs.end()) aovs.push_back(name);
+    start = comma + 1;
+  }
+  if (imageFormatFor(output) != ImageFormat::Exr)
+    throw InputError("--aov", "", "extra layers need an EXR output (-o NAME.exr), not " + output);
+  return aovs;
+}
+
+// "out/x.png" -> "out/x.direct.png".
+std::string withSuffix(const std::string& path, const std::string& suffix) {
+  const std::filesystem::path p(path);
+  return (p.parent_path() / (p.stem().string() + "." + suffix + p.extension().string())).string();
+}
+
+// SIGINT and SIGTERM: the first asks the render to stop (the image of the samples so far is
+// still written, and nothing partial is left); a second SIGINT ends the process at once.
+volatile std::sig_atomic_t g_stopSignal = 0;  // the first stop signal, named in the message
+void onStopSignal(int signal) {
+  if (g_stopSignal == 0) g_stopSignal = signal;
+  requestStop();
+  if (signal == SIGINT) std::signal(SIGINT, SIG_DFL);
+}
+
+// Under MPI, one frame: tiles and busy seconds per rank, and busiest over idlest rank.
+std::string rankFigures(const RankFigures* f) {
+  if (!f || f->tiles.empty()) return "";
+  std::string tiles, busy;
+  double most = 0, least = INFINITY;
+  for (size_t r = 0; r < f->tiles.size(); ++r) {
+    tiles += (r ? ", " : "") + std::to_string(f->tiles[r]);
+    busy += (r ? ", " : "") + jsonNumber(f->busySeconds[r]);
+    most = std::max(most, f->busySeconds[r]);
+    least = std::min(least, f->busySeconds[r]);
+  }
+  return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +
+         jsonNumber(least > 0 ? most / least : 0) + ",\n";
+}
+
+void writeStats(const std::string& path, const SceneDesc& scene, double loadSeconds, double buildSeconds,
+                const RenderResult& r, int frames, int threads, double totalSeconds, int ranks,
+                const RankFigures* perRank) {
+  const RenderSettings& s = scene.settings;
+  const RayCounters& c = r.counters;
+  const uint64_t rays = c.camera + c.shadow + c.indirect;
+  const std::string temp = temporaryBeside(path);
+  FILE* f = std::fopen(temp.c_str(), "w");
+  if (!f) throw InputError(path, "", "cannot write statistics");
+  std::fprintf(f,
+               "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
+               "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
+               "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
+               "  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
+               "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
+               "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
+               "  \"rays_per_second\": %.1f,\n"
+               "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu}\n}\n",
+               jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
+               jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
+               threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
+               frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
+               r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
+               (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
+  const bool ok = std::fclose(f) == 0;
+  if (!ok || std::rename(temp.c_str(), path.c_str()) != 0) {
+    std::remove(temp.c_str());
+    throw InputError(path, "", "cannot write statistics");
+  }
+}
+
+// A frame sequence (--frames, --iso-sweep, --orbit): frame f of N has iso-surface `surface`
+// (counted over all volumes in scene order) at from + (to - from) f / (N - 1), and the camera
+// turned about its look-at point, around its up vector, by orbit f / N degrees (a full 360
+// turn does not repeat the first frame).
+struct FrameSequence {
+  int frames = 1;
+  int surface = -1;  // swept surface, or -1
+  double from = 0, to = 0;
+  double orbit = 0;
+  IsoSurfaceDesc* iso(SceneDesc& scene) const {
+    int k = 0;
+    for (VolumeDesc& v : scene.volumes)
+      for (IsoSurfaceDesc& d : v.isosurfaces)
+        if (k++ == surface) return &d;
+    return nullptr;
+  }
+  double isoValue(int f) const { return frames == 1 ? from : from + (to - from) * double(f) / double(frames - 1); }
+  // OUT.png -> OUT.0007.png (at least 4 digits, more for longer sequences).
+  std::string name(const std::string& output, int f) const {
+    if (frames == 1) return output;
+    const int digits = std::max<int>(4, int(std::to_string(frames - 1).size()));
+    std::string number = std::to_string(f);
+    return withSuffix(output, std::string(size_t(digits) - number.size(), '0') + number);
+  }
+};
+
+FrameSequence frameSequence(const RenderFlags& f, SceneDesc& scene) {
+  FrameSequence seq;
+  seq.frames = f.frames;
+  if (!f.isoSweep.empty()) {
+    std::istringstream in(f.isoSweep);
+    std::string index, from, to;
+    if (!std::getline(in, index, ':') || !std::getline(in, from, ':') || !std::getline(in, to) ||
+        index.find_first_not_of("0123456789") != std::string::npos || index.empty() || index.size() > 6)
+      throw InputError("--iso-sweep", "", "expected SURFACE:FROM:TO, e.g. 0:40:120 (SURFACE counts all iso-surfaces from 0)");
+    seq.surface = std::stoi(index);
+    try {
+      size_t used = 0;
+      seq.from = std::stod(from, &used);
+      if (used != from.size()) throw std::invalid_argument(from);
+      seq.to = std::stod(to, &used);
+      if (used != to.size()) throw std::invalid_argument(to);
+    } catch (const std::exception&) {
+      throw InputError("--iso-sweep", "", "'" + from + "' and '" + to + "' must be numbers");
+    }
+    if (!std::isfinite(seq.from) || !std::isfinite(seq.to))
+      throw InputError("--iso-sweep", "", "the iso values must be finite");
+    if (!seq.iso(scene)) {
+      size_t count = 0;
+      for (const VolumeDesc& v : scene.volumes) count += v.isosurfaces.size();
+      throw InputError("--iso-sweep", "", "no iso-surface " + index + " (the scene has " + std::to_string(count) +
+                                              ", counted from 0 over all volumes)");
+    }
+  }
+  if (f.orbit) {
+    if (!std::isfinite(*f.orbit) || std::fabs(*f.orbit) > 36000) throw InputError("--orbit", "", "expected degrees in [-36000, 36000]");
+    seq.orbit = *f.orbit;
+  }
+  if (seq.frames > 1 && seq.surface < 0 && !f.orbit)
+    throw InputError("--frames", "", "a sequence needs --iso-sweep and/or --orbit (else every frame is the same)");
+  if (seq.frames == 1 && (seq.surface >= 0 || f.orbit))
+    throw InputError("--frames", "", "--iso-sweep and --orbit make a sequence: give --frames N (N >= 2)");
+  return seq;
+}
+
+// The camera turned about its look-at point, around its up vector, by `degrees`.
+CameraDesc orbitCamera(CameraDesc c, double degrees) {
+  if (degrees == 0) return c;
+  const Transform r = Transform::rotate(degrees, c.up);
+  c.position = c.lookAt + r.vector(c.position - c.lookAt);
+  return c;
+}
+
+// Loads the scene and checks every flag and output before any work: the part of a render
+// that every rank of an MPI job does alike.
+struct RenderSetup {
+  SceneDesc scene;
+  FrameSequence seq;
+  std::string output;
+  DisplaySettings display;
+  RenderOptions options;
+};
+
+RenderSetup prepareRender(const RenderFlags& flags) {
+  RenderSetup r;
+  r.scene = parseSceneFile(flags.scene);
+  applyFlags(flags, r.scene);
+  r.seq = frameSequence(flags, r.scene);
+  r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
+  std::error_code ec;
+  if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
+  r.display = displayFlags(flags, r.output);  // bad names and values before any work
+  const RenderSettings& s = r.scene.settings;
+  r.options.spp = s.spp;
+  r.options.seed = s.seed;
+  r.options.threads = s.threads;
+  r.options.aovs = parseAovs(flags.aov, r.output);
+  r.options.alpha = flags.alpha;
+  r.options.noiseThreshold = s.noiseThreshold;
+  r.options.progress = !flags.quiet && isatty(2);
+  for (int f : {0, r.seq.frames - 1}) {  // the first and last names: the same folder, other digits
+    const std::string name = r.seq.name(r.output, f);
+    if (s.integrator == "compare") {
+      for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(name, part));
+    } else {
+      checkWritable(name);
+    }
+  }
+  if (!flags.stats.empty()) checkWritable(flags.stats);
+  return r;
+}
+
+// The frames this rank renders, written and reported (rank 0 reports for all).
+template <typename Mine, typename Build>
+int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool byTiles, Mine mine,
+                 std::unique_ptr<World>& world, int& worldFrame, Build buildWorld, double& loadSeconds,
+                 double& buildSeconds, std::chrono::steady_clock::time_point start) {
+  const SceneDesc& scene = setup.scene;
+  const FrameSequence& seq = setup.seq;
+  const RenderSettings& s = scene.settings;
+  const std::string& output = setup.output;
+  const DisplaySettings& display = setup.display;
+  RenderOptions options = setup.options;
+  options.progress = options.progress && job.rank() == 0;
+  RenderResult total;
+  RankFigures figures;
+  int framesDone = 0;
+  bool warned = false;
+  for (int frame = 0; frame < seq.frames; ++frame) {
+    if (!mine(frame)) continue;
+    if (worldFrame != frame) buildWorld(frame);
+    if (stopRequested()) {
+      std::fprintf(stderr, "isotrace: %sinterrupted while loading: no image written for frame %d\n", job.where().c_str(), frame);
+      if (job.distributed()) job.abort(130);
+      return 130;
+    }
+    if (!warned && job.rank() == 0)
+      for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+    warned = true;
+    const double degrees = seq.orbit * double(frame) / double(seq.frames);
+    Camera camera(orbitCamera(world->camera(), degrees), s.width, s.height);
+    auto integrator = makeIntegrator(s.integrator, *world, s);
+    Film film(s.width, s.height);
+    std::unique_ptr<Film> direct;
+    if (integrator->splitsDirect()) direct = std::make_unique<Film>(s.width, s.height);
+
+    // Said before the first sample, so that a log (or a test) knows the render has begun.
+    if (!flags.quiet && job.rank() == 0) {
+      const std::string which = seq.frames > 1 ? " (frame " + std::to_string(frame + 1) + " of " + std::to_string(seq.frames) + ")" : "";
+      std::fprintf(stderr, "isotrace: rendering %dx%d, %d spp, %s%s\n", s.width, s.height, s.spp, s.integrator.c_str(), which.c_str());
+      std::fflush(stderr);
+    }
+    const RenderResult result = byTiles ? renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures)
+                                        : renderFrame(camera, *integrator, options, film, direct.get());
+    if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
+
+    std::map<std::string, std::string> metadata = {
+        {"Software", "isotrace"},
+        {"isotrace:spp", std::to_string(result.minSamples)},
+        {"isotrace:spp_requested", std::to_string(s.spp)},
+        {"isotrace:integrator", s.integrator},
+        {"isotrace:max_depth", std::to_string(s.maxDepth)},
+        {"isotrace:intersector", intersectorName(s.intersector)},
+        {"isotrace:seed", std::to_string(s.seed)}};
+    if (s.noiseThreshold > 0) {
+      metadata["isotrace:noise_threshold"] = jsonNumber(s.noiseThreshold);
+      metadata["isotrace:spp_mean"] = jsonNumber(result.meanSamples);
+      metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
+    }
+    if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
+    if (result.interrupted) metadata["isotrace:interrupted"] = "1";
+    if (seq.frames > 1) {
+      metadata["isotrace:frame"] = std::to_string(frame) + "/" + std::to_string(seq.frames);
+      if (seq.surface >= 0) metadata["isotrace:iso_value"] = jsonNumber(seq.isoValue(frame));
+      if (seq.orbit != 0) metadata["isotrace:orbit_degrees"] = jsonNumber(degrees);
+    }
+    if (imageFormatFor(output) != ImageFormat::Exr) {
+      metadata["isotrace:exposure"] = jsonNumber(display.exposure);
+      metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
+    }
+    const std::string frameOutput = seq.name(output, frame);
+    std::vector<std::string> written;
+    if (direct) {
+      // global = everything, direct = paths of depth 1, indirect = global - direct.
+      Film indirect = indirectOf(film, *direct);
+      const std::string global = withSuffix(frameOutput, "global");
+      direct->alpha() = indirect.alpha() = film.alpha();
+      writeImage(withSuffix(frameOutput, "direct"), *direct, false, metadata, display);
+      writeImage(global, film, false, metadata, display);
+      writeImage(withSuffix(frameOutput, "indirect"), indirect, false, metadata, display);
+      written = {withSuffix(frameOutput, "direct"), global, withSuffix(frameOutput, "indirect")};
+      const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
+      std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
+                   "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
+    } else {
+      writeImage(frameOutput, film, integrator->signedOutput(), metadata, display);
+      written = {frameOutput};
+    }
+    for (const std::string& path : written) std::printf("%s\n", path.c_str());
+    std::fflush(stdout);
+    total.counters.add(result.counters);
+    total.seconds += result.seconds;
+    total.minSamples = framesDone == 0 ? result.minSamples : std::min(total.minSamples, result.minSamples);
+    total.maxSamples = std::max(total.maxSamples, result.maxSamples);
+    total.meanSamples += result.meanSamples;  // averaged over the frames below
+    total.interrupted = result.interrupted;
+    ++framesDone;
+    if (result.interrupted) break;
+  }
+  if (framesDone > 0) total.meanSamples /= framesDone;
+  if (job.distributed() && !byTiles) {
+    // The frames of all ranks: counters and samples on rank 0, which alone reports them.
+    const int framesAll = job.sum(framesDone);
+    total = job.combine(total, framesDone, framesAll);
+    framesDone = framesAll;
+    if (job.rank() != 0) return total.interrupted ? 130 : 0;
+  }
+
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
+  if (!flags.stats.empty())
+    writeStats(flags.stats, scene, loadSeconds, buildSeconds, total, framesDone, threads, seconds, job.size(),
+               byTiles ? &figures : nullptr);
+  if (!flags.quiet) {
+    const RayCounters& c = total.counters;
+    char buf[96];
+    if (s.noiseThreshold > 0)
+      std::snprintf(buf, sizeof buf, "%d-%d (mean %.1f, adaptive %g)", total.minSamples, total.maxSamples,
+                    total.meanSamples, s.noiseThreshold);
+    else
+      std::snprintf(buf, sizeof buf, "%d", total.minSamples);
+    const std::string sppSummary = buf;
+    const std::string frameSummary = seq.frames > 1 ? ", " + std::to_string(framesDone) + " frames" : "";
+    const double rays = double(c.camera + c.shadow + c.indirect);
+    std::fprintf(stderr,
+                 "isotrace: %dx%d%s, %s spp, %s, %s, %d threads%s: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
+                 "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
+                 s.width, s.height, frameSummary.c_str(), sppSummary.c_str(), s.integrator.c_str(),
+                 intersectorName(s.intersector).c_str(), threads,
+                 job.distributed() ? (" x " + std::to_string(job.size()) + " ranks").c_str() : "", loadSeconds, buildSeconds, total.seconds, seconds,
+                 (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
+                 total.seconds > 0 ? rays / total.seconds * 1e-6 : 0.0,
+                 (unsigned long long)c.traversal.cellsVisited, (unsigned long long)c.traversal.cellsSolved,
+                 (unsigned long long)c.traversal.rootsRefined);
+  }
+  if (total.interrupted) {
+    std::fprintf(stderr, "isotrace: interrupted by %s: wrote the image of %d of %d samples per pixel%s\n",
+                 g_stopSignal == SIGTERM ? "SIGTERM" : "SIGINT", total.minSamples,
+                 s.spp, seq.frames > 1 ? (" (frame " + std::to_string(framesDone - 1) + "; the rest not rendered)").c_str() : "");
+    return 130;
+  }
+  return 0;
+}
+
+int render(const RenderFlags& flags) {
+  const auto start = std::chrono::steady_clock::now();
+  MpiJob job;  // one rank of many under mpirun; otherwise MPI is not touched
+  // A stop signal is a request from here on: loading ends first (then nothing is written), a
+  // render ends at the next tile (the next pixel under MPI) and its image is written whole (a
+  // sequence then stops).
+  // A job that a non-interactive shell starts with `&` begins with SIGINT ignored, so that a
+  // Ctrl-C at the terminal reaches only the foreground job: that ignore is kept, as shells and
+  // the GNU tools keep it. SIGTERM always asks the render to stop.
+  clearStopRequest();
+  g_stopSignal = 0;
+  struct sigaction inherited {};
+  sigaction(SIGINT, nullptr, &inherited);
+  auto previousInt = inherited.sa_handler == SIG_IGN ? SIG_IGN : std::signal(SIGINT, onStopSignal);
+  auto previousTerm = std::signal(SIGTERM, onStopSignal);
+  struct RestoreSignals {
+    decltype(previousInt) i, t;
+    ~RestoreSignals() {
+      std::signal(SIGINT, i == SIG_ERR ? SIG_DFL : i);
+      std::signal(SIGTERM, t == SIG_ERR ? SIG_DFL : t);
+    }
+  } restore{previousInt, previousTerm};
+
+  // Under MPI one frame is spread over the ranks by tiles; a sequence by whole frames (frame f
+  // on rank f mod N, which writes it).
+  RenderSetup setup;
+  const bool byTiles = job.distributed() && flags.frames == 1;
+  auto mine = [&](int frame) { return byTiles || frame % job.size() == job.rank(); };
+  std::unique_ptr<World> world;
+  int worldFrame = -1;
+  double loadSeconds = 0, buildSeconds = 0;
+  auto buildWorld = [&](int frame) {
+    // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
+    if (world && setup.seq.surface < 0) return;
+    if (setup.seq.surface >= 0) setup.seq.iso(setup.scene)->value = setup.seq.isoValue(frame);
+    // A sweep changes iso values only: the volumes stay loaded from the previous frame's World.
+    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector, world.get());
+    worldFrame = frame;
+    loadSeconds += world->loadSeconds();
+    buildSeconds += world->buildSeconds();
+  };
+  auto firstFrame = [&] {
+    for (int f = 0; f < setup.seq.frames; ++f)
+      if (mine(f)) return f;
+    return -1;
+  };
+  if (!job.distributed()) {
+    setup = prepareRender(flags);
+  } else {
+    // Every rank loads for itself; before the ranks talk, they agree on the first failure, which
+    // rank 0 reports in one line (naming the rank that saw it), and all end with status 2.
+    std::string error;
+    try {
+      setup = prepareRender(flags);
+      if (const int f = firstFrame(); f >= 0) buildWorld(f);
+      if (stopRequested()) error = "interrupted while loading: no image written";
+    } catch (const InputError& e) {
+      error = e.what();
+    } catch (const std::bad_alloc&) {
+      error = "out of memory";
+    } catch (const std::exception& e) {
+      error = std::string("internal error: ") + e.what();
+    }
+    error = job.firstError(error);
+    if (!error.empty()) {
+      if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", error.c_str());
+      return stopRequested() ? 130 : 2;
+    }
+  }
+  try {
+    return renderFrames(flags, job, setup, byTiles, mine, world, worldFrame, buildWorld, loadSeconds, buildSeconds, start);
+  } catch (const std::exception& e) {
+    if (!job.distributed()) throw;
+    // The other ranks would wait for this one forever: say which rank failed, end them all.
+    const InputError* input = dynamic_cast<const InputError*>(&e);
+    std::fprintf(stderr, "isotrace: %s%s%s\n", job.where().c_str(), input ? "" : "internal error: ", e.what());
+    job.abort(input ? 2 : 1);
+  }
+}
+
+}  // namespace
+
+Command addRenderCommand(CLI::App& app) {
+  auto flags = std::make_shared<RenderFlags>();
+  RenderFlags& f = *flags;
+  CLI::App* cmd = app.add_subcommand("render", "render a scene to an EXR or PNG image");
+  cmd->add_option("scene", f.scene, "scene file (JSON)")->required();
+  cmd->add_option("-o,--output", f.output, "output image, .exr (linear), .png or .jpg (sRGB); default <scene>.png");
+  cmd->add_option("--spp", f.spp, "samples per pixel")->check(CLI::Range(1, 1 << 20));
+  cmd->add_option("--integrator", f.integrator, std::string("integrator: ") + integratorList());
+  cmd->add_option("--max-depth", f.maxDepth, "longest path for direct/path/compare (1: direct light only)")
+      ->check(CLI::Range(1, 1000));
+  cmd->add_option("--aov", f.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance, samples");
+  cmd->add_option("--stats", f.stats, "write times, ray counts and counters as JSON to this file");
+  cmd->add_option("--intersector", f.intersector, std::string("intersector: ") + intersectorList());
+  cmd->add_option("--resolution", f.resolution, "image size WIDTHxHEIGHT");
+  cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
+  cmd->add_option("--seed", f.seed, "random seed (0 to 2^62)")->check(CLI::Range(0LL, 1LL << 62));
+  cmd->add_flag("--allow-large", f.allowLarge, "allow images above 2^25 pixels (each side stays <= 16384)");
+  cmd->add_flag("--quiet", f.quiet, "print only the output path");
+  cmd->add_option("--exposure", f.exposure, "PNG/JPEG: scale radiance by 2^EV before tone mapping (default 0)");
+  cmd->add_option("--tonemap", f.tonemap, "PNG/JPEG: clamp (default), aces or filmic");
+  cmd->add_flag("--alpha", f.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
+  cmd->add_option("--clamp", f.clamp, "clip each sample's indirect radiance to X (biased; 0: off, the default)");
+  cmd->add_option("--adaptive", f.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");
+  cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep and/or --orbit)")
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--iso-sweep", f.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
+  cmd->add_option("--orbit", f.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");
+  return {cmd, [flags] { return render(*flags); }};
+}
+
+}  // namespace iso

@@ -1,0 +1,50 @@
+#pragma once
+// The commands of `isotrace`, one file each (command_<name>.cpp: its flags and its work), and
+// the helpers they share (cli.cpp, which also parses the command line and dispatches).
+#include <functional>
+#include <string>
+
+
+namespace CLI {
+class App;
+}
+
+namespace iso {
+
+// A command added to the command line: its subcommand, and what runs it once parsed.
+struct Command {
+  CLI::App* app = nullptr;
+  std::function<int()> run;
+};
+Command addRenderCommand(CLI::App& app);
+Command addViewCommand(CLI::App& app);
+Command addInfoCommand(CLI::App& app);
+Command addWatertightCommand(CLI::App& app);
+Command addBenchCommand(CLI::App& app);
+Command addMeshCommand(CLI::App& app);
+
+// Images above this many pixels need --allow-large; no side may exceed kMaxFilmSide.
+constexpr long long kMaxFilmPixels = 1LL << 25;
+constexpr int kMaxFilmSide = 16384;
+
+// --resolution WIDTHxHEIGHT, each side 1 to kMaxFilmSide.
+void parseResolution(const std::string& text, int& width, int& height);
+// A temporary name beside `path`, unique to this process: ".NAME.partial-PID".
+std::string temporaryBeside(const std::string& path);
+// An output must be writable before any work is done: its directory exists and takes a file,
+// and the name is no directory.
+void checkWritable(const std::string& path);
+// Writes `text` to `path` whole or not at all (through a temporary beside it).
+void writeJsonFile(const std::string& path, const std::string& text);
+// The shortest decimal that reads back as the same double (0.28, not 0.28000000000000003).
+std::string jsonNumber(double v);
+std::string jsonString(const std::string& s);
+
+// The flags of the exactness commands (`watertight`, `bench`).
+struct CheckFlags {
+  std::string scene, intersector, json, offset;
+  int rays = 100000, threads = 0;
+  long long seed = 1;
+};
+
+}  // namespace iso
