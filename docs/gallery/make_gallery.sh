@@ -26,7 +26,8 @@ PY
 render() { "$bin" render "$@" --quiet > /dev/null; }
 
 # The examples.
-render examples/default.json --resolution 320x240 --spp 16 -o $out/default.png
+render examples/default.json --resolution 320x240 --spp 96 -o $out/default.png
+render examples/quick_look.json --resolution 320x240 --spp 16 -o $out/quick_look.png
 render examples/cornell_torus.json --resolution 320x320 --spp 256 -o $out/cornell_torus.png
 render examples/mri_brain.json --resolution 320x240 --spp 64 -o $out/mri_brain.png
 render examples/smoke.json --resolution 240x320 --spp 64 -o $out/smoke.png
@@ -57,5 +58,5 @@ render examples/iso_lamp.json --resolution 320x240 --spp 64 --exposure 1 -o $out
 render examples/iso_lamp.json --resolution 320x240 --spp 64 --exposure 1 --tonemap aces -o $out/tonemap_aces.png
 
 # A transparent background.
-render examples/default.json --resolution 320x240 --spp 16 --alpha -o $out/alpha.png
+render examples/quick_look.json --resolution 320x240 --spp 16 --alpha -o $out/alpha.png
 echo "gallery images written to $out"
