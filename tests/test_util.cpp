@@ -22,8 +22,7 @@ namespace fs = std::filesystem;
 
 std::string scratchDir() {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() / "isotrace_tests" /
-                       (std::string(info->test_suite_name()) + "." + info->name());
+  const fs::path dir = fs::path(ISOTRACE_SCRATCH_DIR) / (std::string(info->test_suite_name()) + "." + info->name());
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir.string();
@@ -151,7 +150,7 @@ CommandResult runIsotrace(const std::string& args) { return runCommand(std::stri
 CommandResult runCommand(const std::string& command) {
   // ctest runs tests in parallel processes: capture files are named after the test.
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() / "isotrace_tests" / "commands";
+  const fs::path dir = fs::path(ISOTRACE_SCRATCH_DIR) / "commands";
   fs::create_directories(dir);
   const std::string stem = (dir / (std::string(info->test_suite_name()) + "." + info->name())).string();
   const std::string out = stem + ".out", err = stem + ".err";

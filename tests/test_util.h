@@ -66,7 +66,8 @@ std::string mixedScene();
 std::vector<float> readExr(const std::string& path, std::vector<std::string>* channels = nullptr,
                            std::map<std::string, std::string>* metadata = nullptr);
 
-// A scratch directory unique to the current test, emptied first.
+// A scratch directory unique to the current test, emptied first: under the build tree
+// (build/test_scratch/SUITE.NAME), so that two clones' suites can run at once.
 std::string scratchDir();
 void writeText(const std::string& path, const std::string& text);
 void writeBytes(const std::string& path, const std::string& bytes);

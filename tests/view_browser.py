@@ -58,7 +58,7 @@ def main():
             options.add_argument(flag)
         options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
         driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
-        wait = WebDriverWait(driver, 60, poll_frequency=0.02)
+        wait = WebDriverWait(driver, 120, poll_frequency=0.02)  # a safety net, not a pace
         driver.get(url)
 
         def spp():
@@ -81,7 +81,7 @@ def main():
             return any(s >= 64 and not p for s, p in frames_of(version))
 
         # The image appears, and the first version renders to the scene's spp.
-        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src").startswith("data:image/jpeg"))
+        wait.until(lambda d: (d.find_element(By.ID, "view").get_attribute("src") or "").startswith("data:image/jpeg"))
         wait.until(lambda d: finished(server_state()["version"]))
         first = driver.find_element(By.ID, "view").get_attribute("src")
 
@@ -143,10 +143,10 @@ def main():
             driver.quit()
         server.send_signal(2)
         try:
-            server.wait(timeout=5)
+            server.wait(timeout=60)
         except subprocess.TimeoutExpired:
             server.kill()
-            fail("the server did not stop on SIGINT within 5 s")
+            fail("the server did not stop on SIGINT within 60 s")
         if server.returncode != 0:
             fail("the server exited with %d: %s" % (server.returncode, server.stderr.read()))
 
