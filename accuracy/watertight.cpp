@@ -5,10 +5,20 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <memory>
 #include <random>
+#include <set>
+#include <sstream>
 
 #include "scene/world.h"
+#include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 
@@ -59,14 +69,16 @@ class SurfaceChecker {
   bool inside(const Vec3d& grid) const { return m_grid.interpolate(grid) > m_iso; }
 
   // Crossings of the line o + t d, t in [t0, t1] (world space), by the reference intersector
-  // in double, restarting just past each root.
-  int referenceCrossings(const Vec3d& o, const Vec3d& d, double t0, double t1, TraversalStats& stats) const {
+  // in double, restarting just past each root; their t in `ts` if given.
+  int referenceCrossings(const Vec3d& o, const Vec3d& d, double t0, double t1, TraversalStats& stats,
+                         std::vector<double>* ts = nullptr) const {
     const Vec3d oo = m_toGrid.point(o), dd = m_toGrid.vector(d);
     int n = 0;
     SurfaceHit h;
     double t = t0;
     while (n < 100000 && m_reference.intersect(oo, dd, t, t1, h, stats)) {
       ++n;
+      if (ts) ts->push_back(h.t);
       t = h.t + std::max(h.tError, 1e-300);
     }
     return n;
@@ -74,12 +86,15 @@ class SurfaceChecker {
 
   // Hits from `ray` to its tfar, each next ray spawned from the last hit and continued to
   // the plane through `end` across the ray (the spawned origins leave the line by their
-  // offsets), or without end if `end` is null; `last` gets the chain's last ray.
-  int trace(Ray ray, const Vec3d* end, TraversalStats& stats, Ray* last = nullptr) const {
+  // offsets), or without end if `end` is null; `last` gets the chain's last ray, `ts` the
+  // hits' distances along the first ray (in its t).
+  int trace(Ray ray, const Vec3d* end, TraversalStats& stats, Ray* last = nullptr, std::vector<double>* ts = nullptr) const {
+    const Vec3d o0 = ray.origin(), d0(ray.dir);
     Hit hit;
     int hits = 0;
     while (hits < 100000 && m_world.intersect(ray, hit, stats)) {
       ++hits;
+      if (ts) ts->push_back(dot(hit.position64 - o0, d0) / dot(d0, d0));
       ray = spawnRay(hit, ray.dir);
       if (end) {
         const Vec3d d(ray.dir);
@@ -110,7 +125,10 @@ class SurfaceChecker {
     return spawned;
   }
 
-  void one(std::mt19937_64& rng, WatertightCounts& c, TraversalStats& stats) const {
+  // The three tests of one ray number: each makes its ray from `rng` (always drawing the same
+  // numbers, so ray i is the same whatever the others did), then judges it. A ray that fails
+  // is appended to `failures` if given.
+  void one(std::mt19937_64& rng, WatertightCounts& c, TraversalStats& stats, std::vector<FailedRay>* failures) const {
     std::uniform_real_distribution<double> u(0, 1);
     auto randomPoint = [&] { return Vec3d{u(rng) * m_hi.x, u(rng) * m_hi.y, u(rng) * m_hi.z}; };
     auto randomDirection = [&] {
@@ -118,6 +136,7 @@ class SurfaceChecker {
       return Vec3d{r * std::cos(phi), r * std::sin(phi), z};
     };
     ++c.rays;
+    FailedRay r;
     // Parity: a line through two random points, from outside the box to outside the box.
     {
       const Vec3d a = randomPoint(), b = randomPoint();
@@ -129,32 +148,14 @@ class SurfaceChecker {
         if (clipToBox(toGrid(wa), gd, m_hi, t0, t1)) {
           const Vec3d wEntry = wa + Vec3d(dir) * t0;
           const double margin = 0.05 * (t1 - t0) + 1e-3;
-          Ray ray;
-          ray.org = Vec3f(wEntry - Vec3d(dir) * margin);
-          ray.dir = dir;
-          // The classes where the chain of rays enters and leaves the box: where this float ray
-          // (not the double line) enters, and where the chain's last ray leaves (each spawned
-          // ray starts off the line by its offset, so the chain drifts from it a little).
-          const Vec3d o(ray.org), d(ray.dir);
+          r.test = FailedRay::Test::Parity;
+          r.org = Vec3f(wEntry - Vec3d(dir) * margin);
+          r.dir = dir;
+          const Vec3d o(r.org), d(r.dir);
           if (clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) {
-            ray.tfar = float(t1 + margin);
-            Ray last;
-            const int hits = trace(ray, nullptr, stats, &last);
-            c.crossings += hits;
-            const int expected = referenceCrossings(o, d, 0, t1 + margin, stats);
-            c.referenceCrossings += expected;
-            Vec3d exit;
-            const bool leaves = exitPoint(last, hits > 0, exit);
-            const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
-            const bool in0 = v0 > m_iso, in1 = v1 > m_iso;
-            // An end exactly on the surface has no class: parity is undefined for that ray.
-            const double tie = 1e-12 * (std::fabs(m_iso) + std::fabs(v0) + std::fabs(v1));
-            const bool defined = std::fabs(v0 - m_iso) > tie && std::fabs(v1 - m_iso) > tie;
-            if (defined && (hits % 2 == 1) != (in0 != in1)) {
-              ++c.parityErrors;
-              // Which way it went wrong: a root counted twice, or one missed (a hole).
-              if (hits > expected) ++c.selfHits;
-            }
+            r.end = t1 + margin;
+            r.tfar = float(r.end);
+            judge(r, c, stats, failures);
           }
         }
       }
@@ -162,34 +163,89 @@ class SurfaceChecker {
     // Inside: from a random point, a ray that must cross must hit.
     {
       const Vec3d p = randomPoint();
-      const Vec3d wp = toWorldPoint(p);
-      Ray ray;
-      ray.org = Vec3f(wp);
-      ray.dir = Vec3f(randomDirection());
-      const Vec3d o(ray.org), d(ray.dir);
-      double t0, t1;
-      if (clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1) && t1 > 0) {
-        const bool in0 = inside(toGrid(o)), in1 = inside(toGrid(o + d * t1));
-        Hit hit;
-        if (in0 != in1 && !m_world.intersect(ray, hit, stats)) ++c.insideEscapes;
-      }
+      r.test = FailedRay::Test::Inside;
+      r.org = Vec3f(toWorldPoint(p));
+      r.dir = Vec3f(randomDirection());
+      r.tfar = 3.4e38f;
+      judge(r, c, stats, failures);
     }
     // Shadow: occlusion between two points against the crossings traced between them.
     {
       const Vec3d p = toWorldPoint(randomPoint()), q = toWorldPoint(randomPoint());
-      Ray shadow;
-      shadow.org = Vec3f(p);
-      shadow.dir = Vec3f(q) - shadow.org;
-      shadow.tfar = 1;
-      if (length(shadow.dir) > 0) {
-        const bool occluded = m_world.occluded(shadow, stats);
-        // The same ray as the occlusion query (a normalised copy ends elsewhere by rounding).
-        const Vec3d end = Vec3d(shadow.org) + Vec3d(shadow.dir);
-        const int hits = trace(shadow, &end, stats);
-        const bool differ = inside(toGrid(Vec3d(shadow.org))) != inside(toGrid(Vec3d(shadow.org) + Vec3d(shadow.dir)));
-        if (occluded != (hits > 0 || differ)) ++c.shadowMismatches;
+      r.test = FailedRay::Test::Shadow;
+      r.org = Vec3f(p);
+      r.dir = Vec3f(q) - r.org;
+      r.tfar = 1;
+      if (length(r.dir) > 0) judge(r, c, stats, failures);
+    }
+  }
+
+  // Runs `r`'s test on its ray (org, dir, tfar, end) and counts the outcome. r.what is set to
+  // the failure ("" if none), with what the test found; a failure is appended to `failures`.
+  void judge(FailedRay& r, WatertightCounts& c, TraversalStats& stats, std::vector<FailedRay>* failures) const {
+    r.what.clear();
+    r.hits.clear();
+    r.reference.clear();
+    const bool keep = failures != nullptr;
+    std::vector<double>* hitTs = keep ? &r.hits : nullptr;
+    Ray ray;
+    ray.org = r.org;
+    ray.dir = r.dir;
+    ray.tfar = r.tfar;
+    const Vec3d o(ray.org), d(ray.dir);
+    if (r.test == FailedRay::Test::Parity) {
+      // The classes where the chain of rays enters and leaves the box: where this float ray
+      // (not the double line) enters, and where the chain's last ray leaves (each spawned
+      // ray starts off the line by its offset, so the chain drifts from it a little).
+      double t0, t1;
+      if (!clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) return;
+      Ray last;
+      const int hits = trace(ray, nullptr, stats, &last, hitTs);
+      c.crossings += hits;
+      const int expected = referenceCrossings(o, d, 0, r.end, stats, keep ? &r.reference : nullptr);
+      c.referenceCrossings += expected;
+      Vec3d exit;
+      const bool leaves = exitPoint(last, hits > 0, exit);
+      const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
+      r.startInside = v0 > m_iso;
+      r.endInside = v1 > m_iso;
+      // An end exactly on the surface has no class: parity is undefined for that ray.
+      const double tie = 1e-12 * (std::fabs(m_iso) + std::fabs(v0) + std::fabs(v1));
+      const bool defined = std::fabs(v0 - m_iso) > tie && std::fabs(v1 - m_iso) > tie;
+      if (defined && (hits % 2 == 1) != (r.startInside != r.endInside)) {
+        ++c.parityErrors;
+        r.what = "parity error (a hole)";
+        // Which way it went wrong: a root counted twice, or one missed (a hole).
+        if (hits > expected) {
+          ++c.selfHits;
+          r.what = "parity error and self hit (a root counted twice)";
+        }
+      }
+    } else if (r.test == FailedRay::Test::Inside) {
+      double t0, t1;
+      if (!(clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1) && t1 > 0)) return;
+      r.startInside = inside(toGrid(o));
+      r.endInside = inside(toGrid(o + d * t1));
+      Hit hit;
+      const bool found = m_world.intersect(ray, hit, stats);
+      if (keep && found) r.hits.push_back(hit.t);
+      if (r.startInside != r.endInside && !found) {
+        ++c.insideEscapes;
+        r.what = "inside escape (no hit where the class changes)";
+      }
+    } else {
+      r.occluded = m_world.occluded(ray, stats);
+      // The same ray as the occlusion query (a normalised copy ends elsewhere by rounding).
+      const Vec3d end = o + d;
+      const int hits = trace(ray, &end, stats, nullptr, hitTs);
+      r.startInside = inside(toGrid(o));
+      r.endInside = inside(toGrid(o + d));
+      if (r.occluded != (hits > 0 || r.startInside != r.endInside)) {
+        ++c.shadowMismatches;
+        r.what = r.occluded ? "shadow mismatch (occluded, but no crossing traced)" : "shadow mismatch (not occluded, but crossings traced)";
       }
     }
+    if (keep && !r.what.empty()) failures->push_back(r);
   }
 
  private:
@@ -201,6 +257,25 @@ class SurfaceChecker {
   Vec3d m_hi;
 };
 
+// Iso-surface k of volume v alone in a world (no mesh, no other surface can hide a hole or add
+// a hit), its volume moved by `offset`.
+struct AloneSurface {
+  VolumeDesc desc;
+  std::unique_ptr<World> world;
+  std::unique_ptr<SurfaceChecker> checker;
+  AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset) {
+    SceneDesc alone;
+    alone.path = scene.path;
+    desc = scene.volumes[v];
+    desc.transform = Transform::translate(offset) * desc.transform;
+    desc.isosurfaces = {scene.volumes[v].isosurfaces[k]};
+    desc.isosurfaces[0].material.clear();
+    alone.volumes.push_back(desc);
+    world = std::make_unique<World>(alone, intersector);
+    checker = std::make_unique<SurfaceChecker>(*world, desc.transform, desc.isosurfaces[0].value);
+  }
+};
+
 }  // namespace
 
 std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const IntersectorSpec& intersector,
@@ -209,37 +284,209 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   for (size_t v = 0; v < scene.volumes.size(); ++v)
     for (size_t k = 0; k < scene.volumes[v].isosurfaces.size(); ++k) {
-      // The iso-surface alone: no mesh, no other surface can hide a hole or add a hit.
-      SceneDesc alone;
-      alone.path = scene.path;
-      VolumeDesc vd = scene.volumes[v];
-      vd.transform = Transform::translate(options.offset) * vd.transform;
-      vd.isosurfaces = {scene.volumes[v].isosurfaces[k]};
-      vd.isosurfaces[0].material.clear();
-      alone.volumes.push_back(vd);
-      World world(alone, intersector);
-      const SurfaceChecker checker(world, vd.transform, vd.isosurfaces[0].value);
+      const AloneSurface alone(scene, v, k, intersector, options.offset);
       tbb::enumerable_thread_specific<WatertightCounts> counts;
+      tbb::enumerable_thread_specific<std::vector<FailedRay>> failures;
       arena.execute([&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, options.rays, 256), [&](const tbb::blocked_range<int>& r) {
           WatertightCounts& local = counts.local();
+          std::vector<FailedRay>* kept = options.keepFailures ? &failures.local() : nullptr;
           TraversalStats stats;
           for (int i = r.begin(); i < r.end(); ++i) {
             // One generator per ray: the counts do not depend on the thread count.
             std::mt19937_64 rng(options.seed * 0x9e3779b97f4a7c15ull + uint64_t(i) * 0xbf58476d1ce4e5b9ull + v * 131 + k);
-            checker.one(rng, local, stats);
+            const size_t before = kept ? kept->size() : 0;
+            alone.checker->one(rng, local, stats, kept && kept->size() < kMaxKeptFailures ? kept : nullptr);
+            if (kept)
+              for (size_t f = before; f < kept->size(); ++f) {
+                (*kept)[f].volume = int(v);
+                (*kept)[f].surface = int(k);
+                (*kept)[f].index = uint64_t(i);
+              }
           }
         });
       });
       WatertightReport report;
       report.volume = int(v);
-      report.volumeName = vd.field ? "procedural" : vd.file;
-      report.iso = vd.isosurfaces[0].value;
+      report.volumeName = alone.desc.field ? "procedural" : alone.desc.file;
+      report.iso = alone.desc.isosurfaces[0].value;
       report.intersector = intersectorName(intersector);
       for (const WatertightCounts& c : counts) report.counts.add(c);
-      reports.push_back(report);
+      for (std::vector<FailedRay>& f : failures) report.failures.insert(report.failures.end(), f.begin(), f.end());
+      std::sort(report.failures.begin(), report.failures.end(), [](const FailedRay& a, const FailedRay& b) {
+        return a.index != b.index ? a.index < b.index : int(a.test) < int(b.test);
+      });
+      if (report.failures.size() > kMaxKeptFailures) report.failures.resize(kMaxKeptFailures);
+      reports.push_back(std::move(report));
     }
   return reports;
+}
+
+const char* testName(FailedRay::Test t) {
+  switch (t) {
+    case FailedRay::Test::Parity: return "parity";
+    case FailedRay::Test::Inside: return "inside";
+    case FailedRay::Test::Shadow: return "shadow";
+  }
+  return "?";
+}
+
+namespace {
+
+std::string hex(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
+std::string hex3(const Vec3f& v) { return hex(v.x) + "," + hex(v.y) + "," + hex(v.z); }
+
+std::string hexList(const std::vector<double>& ts) {
+  std::string s;
+  for (double t : ts) s += (s.empty() ? "" : ";") + hex(t);
+  return s.empty() ? "-" : s;
+}
+
+}  // namespace
+
+void writeFailures(const std::string& path, const FailureFile& file) {
+  std::string text = "# isotrace watertight failures: intersector=" + file.intersector + " seed=" + std::to_string(file.seed) +
+                     " offset=" + hex(file.offset.x) + "," + hex(file.offset.y) + "," + hex(file.offset.z) +
+                     " scene=" + file.scene + "\n";
+  for (const FailedRay& r : file.rays)
+    text += std::string(testName(r.test)) + " volume=" + std::to_string(r.volume) + " surface=" + std::to_string(r.surface) +
+            " index=" + std::to_string(r.index) + " org=" + hex3(r.org) + " dir=" + hex3(r.dir) + " tfar=" + hex(r.tfar) +
+            " end=" + hex(r.end) + " start=" + (r.startInside ? "1" : "0") + " endclass=" + (r.endInside ? "1" : "0") +
+            " occluded=" + (r.occluded ? "1" : "0") + " hits=" + hexList(r.hits) + " reference=" + hexList(r.reference) +
+            " what=" + r.what + "\n";
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) throw InputError(path, "", std::string("cannot write: ") + std::strerror(errno));
+  const bool ok = std::fputs(text.c_str(), f) >= 0;
+  if (std::fclose(f) != 0 || !ok) throw InputError(path, "", "cannot write");
+}
+
+FailureFile readFailures(const std::string& path) {
+  const std::string text = readWholeFile(path, "failure file", uint64_t(256) << 20);
+  FailureFile file;
+  std::istringstream in(text);
+  std::string line;
+  int number = 0;
+  auto fail = [&](const std::string& what) -> void { throw InputError(path, "line " + std::to_string(number), what); };
+  auto number64 = [&](const std::string& key, const std::string& v) {
+    char* end = nullptr;
+    errno = 0;
+    const double d = std::strtod(v.c_str(), &end);
+    if (v.empty() || *end != '\0' || errno == ERANGE || !std::isfinite(d)) fail(key + ": '" + v + "' is not a finite number");
+    return d;
+  };
+  auto integer = [&](const std::string& key, const std::string& v, uint64_t most) {
+    if (v.empty() || v.size() > 19 || v.find_first_not_of("0123456789") != std::string::npos) fail(key + ": '" + v + "' is not a count");
+    const uint64_t n = std::stoull(v);
+    if (n > most) fail(key + ": " + v + " is more than " + std::to_string(most));
+    return n;
+  };
+  auto three = [&](const std::string& key, const std::string& v) {
+    std::istringstream parts(v);
+    Vec3d r;
+    std::string p;
+    for (int a = 0; a < 3; ++a) {
+      if (!std::getline(parts, p, ',')) fail(key + ": expected three comma-separated numbers");
+      r[a] = number64(key, p);
+    }
+    if (std::getline(parts, p, ',')) fail(key + ": expected three comma-separated numbers");
+    return r;
+  };
+  auto list = [&](const std::string& key, const std::string& v) {
+    std::vector<double> ts;
+    if (v == "-") return ts;
+    std::istringstream parts(v);
+    for (std::string p; std::getline(parts, p, ';');) {
+      if (ts.size() >= 100000) fail(key + ": more than 100000 values");
+      ts.push_back(number64(key, p));
+    }
+    return ts;
+  };
+  bool header = false;
+  while (std::getline(in, line)) {
+    ++number;
+    if (line.empty()) continue;
+    if (!header) {
+      const std::string magic = "# isotrace watertight failures: ";
+      if (line.compare(0, magic.size(), magic) != 0) fail("not an isotrace failure file (its first line must start '" + magic + "')");
+      const size_t at = line.find(" scene=");
+      if (at == std::string::npos) fail("the header names no scene");
+      file.scene = line.substr(at + 7);
+      std::istringstream fields(line.substr(magic.size(), at - magic.size()));
+      for (std::string field; fields >> field;) {
+        const size_t eq = field.find('=');
+        const std::string key = field.substr(0, eq), value = eq == std::string::npos ? "" : field.substr(eq + 1);
+        if (key == "intersector") file.intersector = value;
+        else if (key == "seed") file.seed = integer(key, value, uint64_t(1) << 62);
+        else if (key == "offset") file.offset = three(key, value);
+        else fail("unknown header field '" + key + "'");
+      }
+      header = true;
+      continue;
+    }
+    if (file.rays.size() >= kMaxKeptFailures) fail("more than " + std::to_string(kMaxKeptFailures) + " rays");
+    FailedRay r;
+    const size_t whatAt = line.find(" what=");
+    if (whatAt == std::string::npos) fail("no 'what=' field");
+    r.what = line.substr(whatAt + 6);
+    std::istringstream fields(line.substr(0, whatAt));
+    std::string test;
+    fields >> test;
+    if (test == "parity") r.test = FailedRay::Test::Parity;
+    else if (test == "inside") r.test = FailedRay::Test::Inside;
+    else if (test == "shadow") r.test = FailedRay::Test::Shadow;
+    else fail("unknown test '" + test + "' (parity, inside, shadow)");
+    std::set<std::string> seen;
+    for (std::string field; fields >> field;) {
+      const size_t eq = field.find('=');
+      if (eq == std::string::npos) fail("expected KEY=VALUE, got '" + field + "'");
+      const std::string key = field.substr(0, eq), value = field.substr(eq + 1);
+      if (!seen.insert(key).second) fail("'" + key + "' given twice");
+      if (key == "volume") r.volume = int(integer(key, value, 1 << 20));
+      else if (key == "surface") r.surface = int(integer(key, value, 1 << 20));
+      else if (key == "index") r.index = integer(key, value, uint64_t(1) << 62);
+      else if (key == "org") r.org = Vec3f(three(key, value));
+      else if (key == "dir") r.dir = Vec3f(three(key, value));
+      else if (key == "tfar") r.tfar = float(number64(key, value));
+      else if (key == "end") r.end = number64(key, value);
+      else if (key == "start") r.startInside = integer(key, value, 1) == 1;
+      else if (key == "endclass") r.endInside = integer(key, value, 1) == 1;
+      else if (key == "occluded") r.occluded = integer(key, value, 1) == 1;
+      else if (key == "hits") r.hits = list(key, value);
+      else if (key == "reference") r.reference = list(key, value);
+      else fail("unknown field '" + key + "'");
+    }
+    for (const char* key : {"volume", "surface", "org", "dir", "tfar"})
+      if (!seen.count(key)) fail(std::string("no '") + key + "' field");
+    file.rays.push_back(std::move(r));
+  }
+  if (!header) throw InputError(path, "", "empty: not an isotrace failure file");
+  return file;
+}
+
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset,
+                                      const std::vector<FailedRay>& rays) {
+  std::map<std::pair<int, int>, std::unique_ptr<AloneSurface>> surfaces;
+  std::vector<FailedRay> out;
+  for (const FailedRay& given : rays) {
+    if (given.volume >= int(scene.volumes.size()) ||
+        given.surface >= int(scene.volumes[size_t(given.volume)].isosurfaces.size()))
+      throw InputError(scene.path, "", "the failure file names iso-surface " + std::to_string(given.surface) + " of volume " +
+                                           std::to_string(given.volume) + ", which this scene does not have");
+    auto& slot = surfaces[{given.volume, given.surface}];
+    if (!slot) slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset);
+    FailedRay r = given;
+    WatertightCounts counts;
+    TraversalStats stats;
+    std::vector<FailedRay> failed;
+    slot->checker->judge(r, counts, stats, &failed);
+    out.push_back(r);
+  }
+  return out;
 }
 
 }  // namespace iso

@@ -37,12 +37,31 @@ struct WatertightCounts {
   uint64_t errors() const { return parityErrors + selfHits + insideEscapes + shadowMismatches; }
 };
 
+// A ray that failed one of the tests, with what it found, so that it can be replayed alone.
+struct FailedRay {
+  enum class Test { Parity, Inside, Shadow };
+  Test test = Test::Parity;
+  int volume = 0, surface = 0;  // scene indices: volumes[volume].isosurfaces[surface]
+  uint64_t index = 0;           // the ray's number in its run (with the seed, it regenerates it)
+  Vec3f org, dir;               // the first ray of the test, as traced
+  float tfar = 0;
+  double end = 0;               // parity: the reference's line ends at t = end (t1 + margin)
+  bool startInside = false;     // the class where the test starts (parity: where the ray enters)
+  bool endInside = false;       // the class where it ends (parity: where the chain's last ray leaves)
+  std::vector<double> hits;     // the hits' distances along the first ray (in its t)
+  std::vector<double> reference;  // parity: the reference's crossings on the line (same t)
+  bool occluded = false;        // shadow: what the occlusion query said
+  std::string what;             // the failure: "parity error (a hole)", "self hit", ...
+};
+const char* testName(FailedRay::Test t);
+
 struct WatertightReport {
   int volume = 0;
   std::string volumeName;
   double iso = 0;
   std::string intersector;
   WatertightCounts counts;
+  std::vector<FailedRay> failures;  // when WatertightOptions::keepFailures, in ray order
 };
 
 struct WatertightOptions {
@@ -50,9 +69,28 @@ struct WatertightOptions {
   uint64_t seed = 1;
   Vec3d offset{0, 0, 0};  // added to every volume's placement (e.g. 1e5 to test far away)
   int threads = 0;        // 0: all cores; the counts do not depend on it
+  bool keepFailures = false;  // keep every failing ray (at most kMaxKeptFailures per surface)
 };
+constexpr size_t kMaxKeptFailures = 100000;
 
 std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const IntersectorSpec& intersector,
                                               const WatertightOptions& options);
+
+// A failure file (`isotrace watertight --dump`): a header line naming the scene, intersector,
+// seed and offset, then one line per failing ray with its doubles and floats in hexadecimal
+// (exact). Read back by readFailures, which validates every field (InputErrors name the line).
+struct FailureFile {
+  std::string scene, intersector;
+  uint64_t seed = 1;
+  Vec3d offset{0, 0, 0};
+  std::vector<FailedRay> rays;
+};
+void writeFailures(const std::string& path, const FailureFile& file);
+FailureFile readFailures(const std::string& path);
+
+// Replays failed rays alone against the scene (the same volume, surface, intersector and offset):
+// each ray's test is run again and its outcome written into a copy (what is "" when it passes).
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset,
+                                      const std::vector<FailedRay>& rays);
 
 }  // namespace iso

@@ -27,7 +27,53 @@ Vec3d parseOffset(const std::string& text) {
   return v;
 }
 
+std::string listOf(const std::vector<double>& ts) {
+  if (ts.empty()) return "none";
+  std::string s;
+  char buf[32];
+  for (double t : ts) {
+    std::snprintf(buf, sizeof buf, "%.17g", t);
+    s += (s.empty() ? "" : ", ") + std::string(buf);
+  }
+  return s;
+}
+
+// `--replay FILE`: each failing ray of a dump, run alone again; what it found then and now.
+int replay(const CheckFlags& flags) {
+  for (const auto& [given, name] : {std::pair{!flags.intersector.empty(), "--intersector"}, {!flags.offset.empty(), "--offset"},
+                                    {!flags.dump.empty(), "--dump"}, {!flags.json.empty(), "--json"}})
+    if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector and the offset");
+  const FailureFile file = readFailures(flags.replay);
+  const SceneDesc scene = parseSceneFile(flags.scene);
+  IntersectorSpec spec;
+  std::string error;
+  if (!parseIntersector(file.intersector, spec, error)) throw InputError(flags.replay, "line 1", "intersector: " + error);
+  const std::vector<FailedRay> now = replayFailures(scene, spec, file.offset, file.rays);
+  std::printf("replay %s on %s: intersector %s, offset (%a, %a, %a), %zu rays\n", flags.replay.c_str(), flags.scene.c_str(),
+              file.intersector.c_str(), file.offset.x, file.offset.y, file.offset.z, file.rays.size());
+  size_t failing = 0;
+  for (size_t i = 0; i < now.size(); ++i) {
+    const FailedRay& was = file.rays[i];
+    const FailedRay& is = now[i];
+    failing += is.what.empty() ? 0 : 1;
+    std::printf("ray %zu: %s test, volume %d, iso-surface %d (iso %.17g), ray %llu of seed %llu\n", i + 1, testName(is.test),
+                is.volume, is.surface, scene.volumes[size_t(is.volume)].isosurfaces[size_t(is.surface)].value,
+                (unsigned long long)is.index, (unsigned long long)file.seed);
+    std::printf("  origin (%.9g, %.9g, %.9g), direction (%.9g, %.9g, %.9g), tfar %.9g\n", is.org.x, is.org.y, is.org.z,
+                is.dir.x, is.dir.y, is.dir.z, is.tfar);
+    std::printf("  class at the start %s, at the end %s%s\n", is.startInside ? "inside" : "outside",
+                is.endInside ? "inside" : "outside",
+                is.test == FailedRay::Test::Shadow ? (is.occluded ? "; occlusion query: occluded" : "; occlusion query: clear") : "");
+    std::printf("  hits (t along the ray): %s\n", listOf(is.hits).c_str());
+    if (is.test == FailedRay::Test::Parity) std::printf("  reference crossings:   %s\n", listOf(is.reference).c_str());
+    std::printf("  then: %s; now: %s\n", was.what.empty() ? "passed" : was.what.c_str(), is.what.empty() ? "passes" : is.what.c_str());
+  }
+  std::printf("%zu of %zu rays fail now\n", failing, now.size());
+  return failing == 0 ? 0 : 1;
+}
+
 int watertight(const CheckFlags& flags) {
+  if (!flags.replay.empty()) return replay(flags);
   SceneDesc scene = parseSceneFile(flags.scene);
   IntersectorSpec spec = scene.settings.intersector;
   if (!flags.intersector.empty()) {
@@ -42,6 +88,8 @@ int watertight(const CheckFlags& flags) {
   options.seed = uint64_t(flags.seed);
   options.offset = parseOffset(flags.offset);
   options.threads = flags.threads;
+  options.keepFailures = !flags.dump.empty();
+  if (!flags.dump.empty()) checkWritable(flags.dump);
   const auto start = std::chrono::steady_clock::now();
   const std::vector<WatertightReport> reports = checkWatertight(scene, spec, options);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -81,6 +129,17 @@ int watertight(const CheckFlags& flags) {
   }
   row("total", "", total);
   std::printf("%.2f s; %llu errors\n", seconds, (unsigned long long)total.errors());
+  if (!flags.dump.empty()) {
+    FailureFile file;
+    file.scene = flags.scene;
+    file.intersector = intersectorName(spec);
+    file.seed = uint64_t(flags.seed);
+    file.offset = options.offset;
+    for (const WatertightReport& r : reports) file.rays.insert(file.rays.end(), r.failures.begin(), r.failures.end());
+    writeFailures(flags.dump, file);
+    std::printf("%zu failing rays written to %s (replay: isotrace watertight %s --replay %s)\n", file.rays.size(),
+                flags.dump.c_str(), flags.scene.c_str(), flags.dump.c_str());
+  }
   if (!flags.json.empty())
     writeJsonFile(flags.json, "{\n  \"total\": {" + counts(total) + "},\n  \"surfaces\": [\n" + surfaces + "\n  ]\n}\n");
   return 0;
@@ -99,6 +158,8 @@ Command addWatertightCommand(CLI::App& app) {
   cmd->add_option("--offset", f.offset, "move every volume by X,Y,Z (e.g. 1e5,1e5,1e5)");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--json", f.json, "write the counts as JSON");
+  cmd->add_option("--dump", f.dump, "write every failing ray (exact, in hexadecimal) to FILE, to replay alone");
+  cmd->add_option("--replay", f.replay, "run the rays of a --dump FILE again, alone, and say what each finds now");
   return {cmd, [flags] { return watertight(*flags); }};
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "accuracy/watertight.h"
+#include "volume/input_error.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -99,6 +100,78 @@ TEST(WatertightDetects, CountsDoNotDependOnThreads) {
   EXPECT_EQ(one.crossings, two.crossings);
   EXPECT_EQ(one.parityErrors, two.parityErrors);
   EXPECT_EQ(one.shadowMismatches, two.shadowMismatches);
+}
+
+// A failing ray written by --dump and read back replays alone to the same failure, with the
+// same hits, bit for bit (Schwarze in float fails often enough on the gyroid to test it).
+TEST(WatertightDump, FailuresReplayAloneToTheSameOutcome) {
+  const std::string dir = test::scratchDir();
+  const SceneDesc scene = parseSceneText(volume(R"("procedural": {"field": "gyroid", "resolution": [32, 32, 32]})", R"({"value": 0})"),
+                                         dir + "/g.json");
+  IntersectorSpec schwarze;
+  std::string error;
+  ASSERT_TRUE(parseIntersector("schwarze", schwarze, error));
+  WatertightOptions options;
+  options.rays = 3000;
+  options.offset = {1e5, 0, -1e5};
+  options.keepFailures = true;
+  const WatertightReport report = checkWatertight(scene, schwarze, options).at(0);
+  ASSERT_EQ(report.failures.size(), report.counts.parityErrors + report.counts.insideEscapes + report.counts.shadowMismatches);
+  ASSERT_GT(report.failures.size(), 50u);
+  FailureFile file;
+  file.scene = dir + "/g.json";
+  file.intersector = intersectorName(schwarze);
+  file.seed = options.seed;
+  file.offset = options.offset;
+  file.rays = report.failures;
+  writeFailures(dir + "/f.txt", file);
+  const FailureFile back = readFailures(dir + "/f.txt");
+  ASSERT_EQ(back.rays.size(), file.rays.size());
+  EXPECT_EQ(back.offset, file.offset);
+  EXPECT_EQ(back.intersector, "schwarze");
+  const std::vector<FailedRay> again = replayFailures(scene, schwarze, back.offset, back.rays);
+  for (size_t i = 0; i < again.size(); ++i) {
+    const FailedRay &a = file.rays[i], &b = back.rays[i], &c = again[i];
+    EXPECT_EQ(a.org, b.org);
+    EXPECT_EQ(a.dir, b.dir);
+    EXPECT_EQ(a.hits, b.hits);
+    EXPECT_EQ(a.reference, b.reference);
+    EXPECT_EQ(c.what, a.what) << "ray " << a.index;
+    EXPECT_EQ(c.hits, a.hits) << "ray " << a.index;
+  }
+  // With the reference intersector the same rays pass.
+  IntersectorSpec reference{IntersectorKind::Reference, 8};
+  for (const FailedRay& r : replayFailures(scene, reference, back.offset, back.rays))
+    EXPECT_EQ(r.what, "") << testName(r.test) << " ray " << r.index;
+}
+
+// Malformed failure files: one line naming the file and the line, nothing replayed.
+TEST(WatertightDump, MalformedFailureFilesAreRefused) {
+  const std::string dir = test::scratchDir();
+  const std::string header = "# isotrace watertight failures: intersector=isolation:8 seed=1 offset=0x0p+0,0x0p+0,0x0p+0 scene=s.json\n";
+  const std::string ray = "parity volume=0 surface=0 index=5 org=0x1p+0,0x1p+0,0x1p+0 dir=0x1p+0,0x0p+0,0x0p+0 tfar=0x1p+2 ";
+  for (const auto& [text, fragment] : std::vector<std::pair<std::string, std::string>>{
+           {"", "empty"},
+           {"hello\n", "line 1: not an isotrace failure file"},
+           {header.substr(0, header.find(" scene=")) + "\n", "line 1: the header names no scene"},
+           {header + ray + "\n", "line 2: no 'what=' field"},
+           {header + "sideways volume=0 what=x\n", "line 2: unknown test 'sideways'"},
+           {header + ray + "colour=1 what=x\n", "line 2: unknown field 'colour'"},
+           {header + ray + "tfar=1 what=x\n", "line 2: 'tfar' given twice"},
+           {header + "parity volume=0 surface=0 org=1,2 dir=1,0,0 tfar=1 what=x\n", "line 2: org: expected three"},
+           {header + "parity volume=0 surface=0 org=1,2,nan dir=1,0,0 tfar=1 what=x\n", "line 2: org: 'nan' is not a finite number"},
+           {header + "parity volume=99999999 surface=0 org=1,2,3 dir=1,0,0 tfar=1 what=x\n", "line 2: volume: 99999999 is more than"},
+           {header + "parity surface=0 org=1,2,3 dir=1,0,0 tfar=1 what=x\n", "line 2: no 'volume' field"},
+           {header + "parity volume=0 surface=0 org=1,2,3 dir=1,0,0 tfar=1 hits=1;x what=x\n", "line 2: hits: 'x' is not a finite number"}}) {
+    test::writeText(dir + "/f.txt", text);
+    test::expectRefusal<InputError>([&] { readFailures(dir + "/f.txt"); }, dir + "/f.txt", fragment);
+  }
+  // A ray naming an iso-surface the scene does not have.
+  test::writeText(dir + "/f.txt", header + "inside volume=0 surface=3 org=1,2,3 dir=1,0,0 tfar=1 what=x\n");
+  const SceneDesc scene = parseSceneText(volume(R"("procedural": {"field": "sphere", "resolution": [8, 8, 8]})", R"({"value": 0.5})"),
+                                         dir + "/s.json");
+  test::expectRefusal<InputError>([&] { replayFailures(scene, IntersectorSpec{}, {0, 0, 0}, readFailures(dir + "/f.txt").rays); },
+                                  dir + "/s.json", "names iso-surface 3 of volume 0, which this scene does not have");
 }
 
 }  // namespace
