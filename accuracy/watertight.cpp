@@ -272,7 +272,8 @@ struct AloneSurface {
     desc.isosurfaces[0].material.clear();
     alone.volumes.push_back(desc);
     world = std::make_unique<World>(alone, intersector);
-    checker = std::make_unique<SurfaceChecker>(*world, desc.transform, desc.isosurfaces[0].value);
+    // Grid space to world as the World places it: a file's own affine (NIfTI), then the scene's.
+    checker = std::make_unique<SurfaceChecker>(*world, world->volumes()[0].transform, desc.isosurfaces[0].value);
   }
 };
 

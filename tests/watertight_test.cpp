@@ -56,6 +56,9 @@ INSTANTIATE_TEST_SUITE_P(
         // ones isolation got wrong before spawned rays carried their class.
         WatertightCase{"gyroid", volume(R"("procedural": {"field": "gyroid", "resolution": [64, 64, 64]})", R"({"value": 0})")},
         WatertightCase{"marschner_lobb", volume(R"("procedural": {"field": "marschner_lobb", "resolution": [41, 41, 41]})", R"({"value": 0.5})")},
+        // A NIfTI file placed by its own oblique, mirrored affine (the check once ignored it and
+        // judged the rays against the wrong place: a third of them "failed").
+        WatertightCase{"example4d_oblique_nifti", volume(R"("file": ")" + test::dataPath("volumes/example4d.nii.gz") + R"(")", R"({"value": 300})")},
         // Thin noisy skin of a CT scan at an integer iso value on integer data.
         WatertightCase{"lidc2_skin", volume(R"("file": ")" + test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz") + R"(")", R"({"value": 18})")},
         // A sparse OpenVDB grid: crossings across its stored blocks and against its constant

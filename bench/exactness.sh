@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# bench/exactness.sh [OPTIONS]: exactness at scale. `isotrace watertight` on rough generated
+# fields (bench/rough_field.py: blobs + ripple, float32, anisotropic spacing, placed at 1e5;
+# three iso values each) and on every real volume of examples/data (three iso values each,
+# bench/exactness_real.json, at the origin and at 1e5), then one table: rays, parity errors,
+# self hits, inside escapes, shadow mismatches, and crossings lost per 1e7 reference crossings.
+# Every failing ray is dumped (OUT_DIR/*.failures.txt) to replay with `isotrace watertight
+# SCENE --replay FILE`.
+#
+# Options: --rough-rays N (default 100000000 per surface), --real-rays N (default 10000000),
+#          --seeds "1 2 3" (rough fields), --intersector NAME (default isolation; `reference`
+#          is the double-precision control), --threads N, --out DIR (default out/exactness).
+# Time: the machine does about 1e5 rays per second per core: the defaults take hours. For a
+# quick look: bench/exactness.sh --rough-rays 1000000 --real-rays 100000.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+roughRays=100000000
+realRays=10000000
+seeds="1 2 3"
+intersector=isolation
+threads=0
+out=out/exactness
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --rough-rays) roughRays="$2"; shift 2 ;;
+    --real-rays) realRays="$2"; shift 2 ;;
+    --seeds) seeds="$2"; shift 2 ;;
+    --intersector) intersector="$2"; shift 2 ;;
+    --threads) threads="$2"; shift 2 ;;
+    --out) out="$2"; shift 2 ;;
+    *) echo "exactness: unknown option '$1' (see the head of bench/exactness.sh)" >&2; exit 2 ;;
+  esac
+done
+for n in "$roughRays" "$realRays" "$threads"; do
+  [[ "$n" =~ ^[0-9]+$ ]] || { echo "exactness: '$n' is not a count" >&2; exit 2; }
+done
+isotrace=build/isotrace
+[ -x $isotrace ] || { echo "exactness: build first (./run.sh or ./test.sh)" >&2; exit 2; }
+mkdir -p "$out"
+commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+echo "exactness: intersector $intersector, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee "$out/README.txt"
+
+run() {  # NAME SCENE RAYS OFFSET
+  local name=$1 scene=$2 rays=$3 offset=$4
+  [ "$rays" -gt 0 ] || return 0
+  echo "exactness: $name: $rays rays per surface, offset $offset ..." >&2
+  $isotrace watertight "$scene" --rays "$rays" --intersector "$intersector" --offset "$offset" --threads "$threads" \
+    --json "$out/$name.json" --dump "$out/$name.failures.txt" > "$out/$name.txt"
+}
+for seed in $seeds; do
+  # The rough fields are placed at 1e5 by their own origin.
+  scene=$(bench/rough_field.py "$out/fields" --seed "$seed")
+  run "rough_$seed" "$scene" "$roughRays" 0,0,0
+done
+for offset in 0,0,0 1e5,1e5,1e5; do
+  run "real_at_${offset%%,*}" bench/exactness_real.json "$realRays" "$offset"
+done
+
+python3 - "$out" "$intersector" <<'PY'
+import glob, json, os, sys
+out, intersector = sys.argv[1:3]
+real = json.load(open("bench/exactness_real.json"))["volumes"]
+rows = []
+for path in sorted(glob.glob(os.path.join(out, "*.json"))):
+    name = os.path.basename(path)[:-5]
+    report = json.load(open(path))
+    for s in report["surfaces"]:
+        if name.startswith("rough"):
+            what = "%s (1e5)" % name
+        else:
+            what = "%s (%s)" % (os.path.basename(real[s["volume"]]["file"]), "1e5" if name.endswith("1e5") else "origin")
+        ref = s["reference_crossings"]
+        lost = (ref - s["crossings"]) / ref * 1e7 if ref else 0.0
+        rows.append((what, "%g" % s["iso"], s["rays"], s["parity_errors"], s["self_hits"], s["inside_escapes"],
+                     s["shadow_mismatches"], s["crossings"], ref, lost))
+head = ("volume", "iso", "rays", "parity", "self hits", "inside escapes", "shadow", "crossings", "reference", "lost / 1e7")
+lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+for r in rows:
+    lines.append("| %s | %s | %d | %d | %d | %d | %d | %d | %d | %.2f |" % r)
+errors = sum(r[3] + r[4] + r[5] + r[6] for r in rows)
+lines.append("")
+lines.append("%s: %d surfaces, %d errors of any kind" % (intersector, len(rows), errors))
+text = "\n".join(lines)
+open(os.path.join(out, "table.md"), "w").write(text + "\n")
+print(text)
+PY
