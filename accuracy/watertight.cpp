@@ -151,12 +151,8 @@ class SurfaceChecker {
           r.test = FailedRay::Test::Parity;
           r.org = Vec3f(wEntry - Vec3d(dir) * margin);
           r.dir = dir;
-          const Vec3d o(r.org), d(r.dir);
-          if (clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) {
-            r.end = t1 + margin;
-            r.tfar = float(r.end);
-            judge(r, c, stats, failures);
-          }
+          r.margin = margin;
+          judge(r, c, stats, failures);
         }
       }
     }
@@ -197,12 +193,16 @@ class SurfaceChecker {
       // The classes where the chain of rays enters and leaves the box: where this float ray
       // (not the double line) enters, and where the chain's last ray leaves (each spawned
       // ray starts off the line by its offset, so the chain drifts from it a little).
+      // Everything from the float ray as traced: where it meets the box, and its end a margin
+      // past the exit (the reference's line ends there too), so that a replay is the same test.
       double t0, t1;
       if (!clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1)) return;
+      const double end = t1 + r.margin;
+      ray.tfar = r.tfar = float(end);
       Ray last;
       const int hits = trace(ray, nullptr, stats, &last, hitTs);
       c.crossings += hits;
-      const int expected = referenceCrossings(o, d, 0, r.end, stats, keep ? &r.reference : nullptr);
+      const int expected = referenceCrossings(o, d, 0, end, stats, keep ? &r.reference : nullptr);
       c.referenceCrossings += expected;
       Vec3d exit;
       const bool leaves = exitPoint(last, hits > 0, exit);
@@ -224,7 +224,10 @@ class SurfaceChecker {
     } else if (r.test == FailedRay::Test::Inside) {
       double t0, t1;
       if (!(clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1) && t1 > 0)) return;
-      r.startInside = inside(toGrid(o));
+      // The class where the ray's extent in the box begins: its origin, or where it enters the
+      // box if the origin (a random point in the box, rounded to float far from the origin)
+      // lies just outside it. The field has no class outside the box.
+      r.startInside = inside(toGrid(o + d * std::max(t0, 0.0)));
       r.endInside = inside(toGrid(o + d * t1));
       Hit hit;
       const bool found = m_world.intersect(ray, hit, stats);
@@ -238,8 +241,12 @@ class SurfaceChecker {
       // The same ray as the occlusion query (a normalised copy ends elsewhere by rounding).
       const Vec3d end = o + d;
       const int hits = trace(ray, &end, stats, nullptr, hitTs);
-      r.startInside = inside(toGrid(o));
-      r.endInside = inside(toGrid(o + d));
+      // The classes at the ends of the segment's extent in the box (its end points, unless
+      // rounding to float put them just outside); a segment that misses the box has none.
+      double t0, t1;
+      const bool meets = clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1) && t0 <= 1 && t1 >= 0;
+      r.startInside = meets && inside(toGrid(o + d * std::max(t0, 0.0)));
+      r.endInside = meets && inside(toGrid(o + d * std::min(t1, 1.0)));
       if (r.occluded != (hits > 0 || r.startInside != r.endInside)) {
         ++c.shadowMismatches;
         r.what = r.occluded ? "shadow mismatch (occluded, but no crossing traced)" : "shadow mismatch (not occluded, but crossings traced)";
@@ -357,7 +364,7 @@ void writeFailures(const std::string& path, const FailureFile& file) {
   for (const FailedRay& r : file.rays)
     text += std::string(testName(r.test)) + " volume=" + std::to_string(r.volume) + " surface=" + std::to_string(r.surface) +
             " index=" + std::to_string(r.index) + " org=" + hex3(r.org) + " dir=" + hex3(r.dir) + " tfar=" + hex(r.tfar) +
-            " end=" + hex(r.end) + " start=" + (r.startInside ? "1" : "0") + " endclass=" + (r.endInside ? "1" : "0") +
+            " margin=" + hex(r.margin) + " start=" + (r.startInside ? "1" : "0") + " endclass=" + (r.endInside ? "1" : "0") +
             " occluded=" + (r.occluded ? "1" : "0") + " hits=" + hexList(r.hits) + " reference=" + hexList(r.reference) +
             " what=" + r.what + "\n";
   std::FILE* f = std::fopen(path.c_str(), "w");
@@ -453,7 +460,7 @@ FailureFile readFailures(const std::string& path) {
       else if (key == "org") r.org = Vec3f(three(key, value));
       else if (key == "dir") r.dir = Vec3f(three(key, value));
       else if (key == "tfar") r.tfar = float(number64(key, value));
-      else if (key == "end") r.end = number64(key, value);
+      else if (key == "margin") r.margin = number64(key, value);
       else if (key == "start") r.startInside = integer(key, value, 1) == 1;
       else if (key == "endclass") r.endInside = integer(key, value, 1) == 1;
       else if (key == "occluded") r.occluded = integer(key, value, 1) == 1;

@@ -45,7 +45,7 @@ struct FailedRay {
   uint64_t index = 0;           // the ray's number in its run (with the seed, it regenerates it)
   Vec3f org, dir;               // the first ray of the test, as traced
   float tfar = 0;
-  double end = 0;               // parity: the reference's line ends at t = end (t1 + margin)
+  double margin = 0;            // parity: how far before the box the ray starts and past it it ends
   bool startInside = false;     // the class where the test starts (parity: where the ray enters)
   bool endInside = false;       // the class where it ends (parity: where the chain's last ray leaves)
   std::vector<double> hits;     // the hits' distances along the first ray (in its t)

@@ -101,19 +101,26 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       GridRay<Real> ray;
+      ExactEnds exact;
       if constexpr (std::is_same_v<Real, float>) {
+        // The float ray is the double one rounded (what queryRay<float> gives); the double one
+        // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
+        GridRay<double> ray64;
         if (cache && cache->surface == this) {
           ray = cache->ray;
+          ray64 = cache->ray64;
         } else {
-          ray = queryRay<Real>(m_grid, org, dir, tnear, start);
-          if (cache) *cache = {this, ray};
+          ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
+          ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
+          if (cache) *cache = {this, ray, ray64};
         }
+        exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
       } else {
         ray = queryRay<Real>(m_grid, org, dir, tnear, start);
       }
       CellHit<Real> cellHit;
       if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
-                                 cellHit, stats, start))
+                                 cellHit, stats, start, std::is_same_v<Real, float> ? &exact : nullptr))
         return false;
       if constexpr (!AnyHit) {
         Real g[8];

@@ -35,6 +35,7 @@ class IsoSurface;
 struct GridRayCache {
   const IsoSurface* surface = nullptr;
   GridRay<float> ray;
+  GridRay<double> ray64;  // the same ray in double: the float traversal's exact ends
 };
 struct IsoRayContext {
   RTCIntersectContext embree;

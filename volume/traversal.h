@@ -42,6 +42,16 @@ inline GridRay<Real> toGridRay(const Grid& grid, const Vec3d& org, const Vec3d& 
   return GridRay<Real>(Vec3<Real>(o), Vec3<Real>(d));
 }
 
+// The query's ray in double (grid coordinates, as GridRay<double> holds it), its extent and the
+// iso value in double. A float traversal takes the class at the ends of the ray's extent in
+// the grid from it (see exactEndClass): where the ray starts inside the grid without a given
+// class, enters the grid through its boundary, leaves it through its boundary, or ends at
+// tfar. Faces between cells keep the float values both cells compute alike.
+struct ExactEnds {
+  Vec3d org, dir;
+  double iso = 0, tnear = 0, tfar = 0;
+};
+
 struct TraversalStats {
   uint64_t cellsVisited = 0;  // cells the DDA stepped through
   uint64_t cellsSolved = 0;   // cells whose corners straddle the iso value
@@ -188,13 +198,33 @@ Real classBehindEntry(const Cells& cells, Real iso, const GridRay<Real>& ray, Ve
   return approachSide(cellCubic(behind), carried) > Real(0) ? tiny : -tiny;
 }
 
+// The class (+1 inside, -1 outside, 0 exactly on the surface) of the field of `cell` in double,
+// at the ray's point at t (faceAxis < 0), or where the ray meets the grid's face `face` on
+// `faceAxis` (its t found in double too). This is what the double-precision reference, and
+// any check in double, sees at the ends of the ray's extent in the grid; a float traversal
+// that decided them from its float positions (off by float rounding, 1e-6 cells at the far
+// side of a 100-cell grid) could put a crossing within that distance of an end on the other
+// side of it: a hole or a double hit (found at 1e7 rays, bench/exactness.sh).
+template <typename Cells>
+int exactEndClass(const Cells& cells, const ExactEnds& e, const Vec3i& cell, double t, int faceAxis, int face) {
+  double g[8];
+  cells.load(cell, e.iso, g);
+  if (faceAxis >= 0) t = (double(face) - e.org[faceAxis]) / e.dir[faceAxis];
+  Vec3d p;
+  for (int a = 0; a < 3; ++a)
+    p[a] = a == faceAxis ? double(face - cell[a]) : std::clamp(e.org[a] + t * e.dir[a] - double(cell[a]), 0.0, 1.0);
+  const double f = trilinear(g, p);
+  return f > 0 ? 1 : f < 0 ? -1 : 0;
+}
+
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 // `start` applies where the query starts at tnear inside the box (not at a face of it).
 template <bool AnyHit, typename Real, typename Intersector, typename Cells>
 bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
-                   TraversalStats& stats, StartClass start = StartClass::Unknown) {
+                   TraversalStats& stats, StartClass start = StartClass::Unknown,
+                   const ExactEnds* exact = nullptr) {
   if (!ray.valid() || !(tnear <= tfar)) return false;
   Real t0 = tnear, t1 = tfar;
   int entryAxis = -1;
@@ -253,6 +283,14 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
     const bool pos = ray.dir[axis] > Real(0);
     return Real(pos == entering ? 0 : 1);
   };
+  // The grid coordinate of the face the ray enters (leaves) the current cell through on
+  // `axis`, and whether that face is on the grid's boundary.
+  auto gridFace = [&](int axis, bool entering) { return cell[axis] + int(faceValue(axis, entering)); };
+  auto atGridFace = [&](int axis, bool entering) {
+    if (axis < 0) return false;
+    const int f = gridFace(axis, entering);
+    return f == 0 || f == cells.dims[axis] - 1;
+  };
 
   // Rounding in a hit's t: of the ray's origin in grid coordinates (it moves the ray by
   // eps |org|, i.e. t by that over the speed), and of t and the segment length themselves.
@@ -280,6 +318,7 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
   // A given start class stands for the first segment's f0, whatever the field says there.
   bool startGiven = entryAxis < 0 && start != StartClass::Unknown;
   if (startGiven) carried = start == StartClass::Inside ? tiny : -tiny;
+  bool firstSegment = true;
   for (;;) {
     ++stats.cellsVisited;
     int m = 0;
@@ -340,6 +379,22 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
       seg.f0 = trilinear(seg.g, seg.a);
       seg.f1 = trilinear(seg.g, seg.b);
       if (seg.f0 == Real(0) || startGiven) seg.f0 = carried;
+      // At an end of the ray's extent in the grid, the class in double (exactEndClass) where
+      // float says otherwise: the first segment of a ray that starts here without a given
+      // class or enters through the grid's boundary; the last one that ends at tfar or leaves
+      // through the grid's boundary.
+      if (exact) {
+        if (firstSegment && !startGiven && (enterAxis < 0 || atGridFace(enterAxis, true))) {
+          const int c = enterAxis < 0 ? exactEndClass(cells, *exact, cell, exact->tnear, -1, 0)
+                                      : exactEndClass(cells, *exact, cell, 0, enterAxis, gridFace(enterAxis, true));
+          if (c != 0 && (c > 0) != (seg.f0 > Real(0))) seg.f0 = c > 0 ? tiny : -tiny;
+        }
+        if ((!throughFace && t1 == tfar) || (throughFace && atGridFace(leaveAxis, false))) {
+          const int c = throughFace ? exactEndClass(cells, *exact, cell, 0, leaveAxis, gridFace(leaveAxis, false))
+                                    : exactEndClass(cells, *exact, cell, exact->tfar, -1, 0);
+          if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? tiny : -tiny;
+        }
+      }
       if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.f0) > Real(0) ? tiny : -tiny;
       carried = seg.f1 > Real(0) ? tiny : -tiny;
       if constexpr (AnyHit) {
@@ -362,6 +417,7 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
       }
     }
     startGiven = false;
+    firstSegment = false;
     if (!throughFace) return false;
     cell[m] += step[m];
     if (cell[m] < lo[m] || cell[m] >= hi[m]) return false;
