@@ -206,7 +206,9 @@ class SurfaceChecker {
       c.referenceCrossings += expected;
       Vec3d exit;
       const bool leaves = exitPoint(last, hits > 0, exit);
-      const double v0 = m_grid.interpolate(toGrid(o + d * t0)), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
+      // (The ray's extent in the box begins at its origin where rounding the origin to float
+      // put it inside the box: a line that grazes a face, entered just behind the origin.)
+      const double v0 = m_grid.interpolate(toGrid(o + d * std::max(t0, 0.0))), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
       r.startInside = v0 > m_iso;
       r.endInside = v1 > m_iso;
       // An end exactly on the surface has no class: parity is undefined for that ray.
