@@ -853,6 +853,18 @@ Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   return m.emission;
 }
 
+namespace {
+
+// Whether a ray leaving an iso-surface hit in direction w goes on through the surface: when w
+// heads to the same side of the normal as the incoming ray (w = incoming, the watertight
+// check's case, always does); one of them in the plane decides by w against the incoming ray.
+bool goesThrough(const Hit& hit, const Vec3f& w) {
+  const float a = dot(w, hit.normal), b = dot(hit.incoming, hit.normal);
+  return a != 0 && b != 0 ? (a > 0) == (b > 0) : dot(w, hit.incoming) > 0;
+}
+
+}  // namespace
+
 Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
   const Vec3d n(dot(w, hit.normal) < 0 ? -hit.normal : hit.normal);  // towards the leaving side
   const Vec3d p = hit.position64;
@@ -866,6 +878,16 @@ Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
   const double spacing = hit.surface >= 0 ? 0x1p-52 : 0x1p-23;
   const double floor = std::max(std::max({a.x, a.y, a.z}) * spacing, 1e-20);
   const double d = std::max(hit.surface >= 0 ? double(hit.spawnOffset) : dot(absv(n), Vec3d(hit.pError)), floor);
+  if (hit.surface >= 0 && length(Vec3d(hit.incoming)) > 0) {
+    // An iso-surface's origin moves along the incoming ray, on whose line the crossing and its
+    // class were decided: forward past the hit for a ray that goes through, back for one that
+    // turns back. Along the normal it could land on the wrong side where the hit sits on a
+    // cell face: the normal is the gradient of one cell, and the surface bends at the face
+    // (a double count found at 1e7 rays: the next ray started on the old side with the new
+    // class and reported the same crossing again).
+    const Vec3d in = normalize(Vec3d(hit.incoming));
+    return p + in * (goesThrough(hit, w) ? d : -d);
+  }
   Vec3d po = p + n * d;
   if (hit.surface < 0) {
     // Round away from the surface in float, where Embree will see it.
@@ -889,12 +911,7 @@ Ray leaving(const Hit& hit, const Vec3f& w) {
   if (hit.surface >= 0) {
     r.org64 = o;
     r.fromSurface = hit.surface;
-    // Through the surface when w heads to the same side of the normal as the incoming ray
-    // (w = incoming, the watertight check's case, always does); one of them in the plane
-    // decides by w against the incoming direction.
-    const float a = dot(w, hit.normal), b = dot(hit.incoming, hit.normal);
-    const bool through = a != 0 && b != 0 ? (a > 0) == (b > 0) : dot(w, hit.incoming) > 0;
-    r.fromInside = through ? hit.insideAfter : !hit.insideAfter;
+    r.fromInside = goesThrough(hit, w) ? hit.insideAfter : !hit.insideAfter;
   }
   return r;
 }
