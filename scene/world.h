@@ -177,11 +177,14 @@ class World {
   bool m_hasThin = false;  // a thin dielectric is in the scene: shadow rays go through it
 };
 
-// Rays leaving a hit (pbrt-v4's OffsetRayOrigin): the origin moves along the geometric normal
-// by the hit's position error bound projected on it, to the side the ray leaves to, and is
-// then rounded away from the surface. For triangles that bound comes from the barycentric
-// interpolation; for iso-surfaces from the intersector's error bound on t, capped at the
-// rounding of the float traversal's grid coordinates (Hit::spawnOffset, see World::fillIsoHit).
+// Rays leaving a hit (pbrt-v4's OffsetRayOrigin): for triangles the origin moves along the
+// geometric normal by the hit's position error bound projected on it (from the barycentric
+// interpolation), to the side the ray leaves to, and is then rounded away from the surface.
+// For iso-surfaces it moves along the incoming ray, forward if the new ray goes through the
+// surface and back if it turns back, by Hit::spawnOffset (the intersector's error bound on t,
+// capped at the rounding of the float traversal's grid coordinates, see World::fillIsoHit): on
+// that line the crossing and its class were decided, while the normal is one cell's gradient
+// and can point across a bend of the surface at a cell face.
 // A ray leaving an iso-surface also carries the class it starts in (Ray::fromSurface): the
 // class the hit's crossing led to if it goes on through the surface (to the side of the
 // normal the incoming ray was heading to), else the class it came from. Next to a close pair
