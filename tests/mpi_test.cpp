@@ -32,7 +32,7 @@ using test::runIsotrace;
 // already unloaded (stack frames without a name, which no suppression can match).
 std::string mpirun(int ranks) {
   const char* asan = std::getenv("ASAN_OPTIONS");
-  const std::string env = asan ? "ASAN_OPTIONS=\"" + std::string(asan) + ":detect_leaks=0\" " : "";
+  const std::string env = asan ? "env ASAN_OPTIONS=\"" + std::string(asan) + ":detect_leaks=0\" " : "";
   // --foreground: a signal to timeout goes to mpirun alone. Without it timeout sends it to
   // mpirun and then to its whole process group again, and a second SIGINT makes mpirun kill
   // the ranks at once (no image: an intermittent failure of the interrupt test below).
