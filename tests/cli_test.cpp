@@ -660,8 +660,8 @@ TEST(Cli, InterruptWhileLoadingWritesNothing) {
   test::writeText(dir + "/s.json", R"({"volumes": [{"file": "v.raw", "dims": [16, 16, 16], "type": "uint8",
     "isosurfaces": [{"value": 100}]}]})");
   test::Process render(std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json -o " + dir + "/t.png >/dev/null");
-  const int fd = open(pipe.c_str(), O_WRONLY);  // returns once isotrace has opened the pipe: it is loading
-  ASSERT_GE(fd, 0);
+  const int fd = render.openPipeForWriting(pipe);  // once isotrace has opened the pipe: it is loading
+  ASSERT_GE(fd, 0) << render.err();
   render.signal(SIGINT);
   std::string samples(16 * 16 * 16, '\0');
   for (size_t i = 0; i < samples.size(); ++i) samples[i] = char(i % 200);

@@ -146,8 +146,8 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
     "isosurfaces": [{"value": 100}]}]})");
   test::Process crash(mpirun(1) + ISOTRACE_BINARY + common + " --spp 100000 " + dir + "/good.json : -np 1 " +
                       ISOTRACE_BINARY + common + " " + dir + "/crash.json");
-  const int fd = open(pipe.c_str(), O_WRONLY);
-  ASSERT_GE(fd, 0);
+  const int fd = crash.openPipeForWriting(pipe);
+  ASSERT_GE(fd, 0) << crash.err();
   const std::vector<pid_t> loading = test::processesWithArgument(ISOTRACE_BINARY, dir + "/crash.json");
   ASSERT_EQ(loading.size(), 1u);
   kill(loading[0], SIGSEGV);

@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
 #include <csignal>
 
@@ -99,6 +100,24 @@ bool Process::waitForErr(const std::string& text, double safetySeconds) {
     if (left <= 0 || !readSome(left)) return m_err.find(text) != std::string::npos;
   }
   return true;
+}
+
+int Process::openPipeForWriting(const std::string& path, double safetySeconds) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(safetySeconds);
+  while (std::chrono::steady_clock::now() < end) {
+    // Without a reader a non-blocking open fails with ENXIO; a blocking one would wait for ever
+    // if the process died before opening the pipe.
+    const int fd = open(path.c_str(), O_WRONLY | O_NONBLOCK | O_CLOEXEC);
+    if (fd >= 0) {
+      fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) & ~O_NONBLOCK);
+      return fd;
+    }
+    siginfo_t ended{};
+    if (errno != ENXIO || m_pid <= 0 || waitid(P_PID, id_t(m_pid), &ended, WEXITED | WNOHANG | WNOWAIT) != 0 || ended.si_pid != 0)
+      return -1;  // (the process, if it ended, is left for wait() to reap)
+    readSome(0.01);  // takes what the process says meanwhile; at most 10 ms between looks
+  }
+  return -1;
 }
 
 void Process::signal(int sig) {

@@ -47,6 +47,9 @@ class Process {
   int wait(double safetySeconds = 300);
   const std::string& err() const { return m_err; }
   pid_t pid() const { return m_pid; }
+  // Opens the named pipe `path` for writing once a reader has opened it (the event: the process
+  // is reading it); -1 if this process ended first, or after `safetySeconds`.
+  int openPipeForWriting(const std::string& path, double safetySeconds = 300);
 
  private:
   bool readSome(double seconds);  // false at end of stderr or after `seconds`
