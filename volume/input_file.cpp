@@ -35,7 +35,10 @@ InputFile checkInputFile(const std::string& path, const std::string& what, bool 
   throw InputError(path, "", "is not a regular file (a socket or another special file), not a " + what);
 }
 
-std::string readWholeFile(const std::string& path, const std::string& what, uint64_t streamCap) {
+namespace {
+
+template <typename Container>
+Container readAll(const std::string& path, const std::string& what, uint64_t streamCap) {
   const InputFile f = checkInputFile(path, what);
   const int fd = open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError(path, "", "cannot open " + what + ": " + std::strerror(errno));
@@ -45,7 +48,7 @@ std::string readWholeFile(const std::string& path, const std::string& what, uint
   } closer{fd};
   // A regular file that grows while it is read is read to the size it had.
   const uint64_t limit = f.stream ? streamCap + 1 : f.size;
-  std::string data;
+  Container data;
   data.reserve(f.stream ? 0 : size_t(f.size));
   char buffer[1 << 16];
   while (data.size() < limit) {
@@ -53,12 +56,22 @@ std::string readWholeFile(const std::string& path, const std::string& what, uint
     if (n < 0 && errno == EINTR) continue;
     if (n < 0) throw InputError(path, "byte " + std::to_string(data.size()), "read error: " + std::string(std::strerror(errno)));
     if (n == 0) break;
-    data.append(buffer, size_t(n));
+    data.insert(data.end(), buffer, buffer + n);
   }
   if (f.stream && data.size() > streamCap)
     throw InputError(path, "", "a " + what + " read from a named pipe may hold at most " + std::to_string(streamCap) +
                                    " bytes; this one holds more");
   return data;
+}
+
+}  // namespace
+
+std::string readWholeFile(const std::string& path, const std::string& what, uint64_t streamCap) {
+  return readAll<std::string>(path, what, streamCap);
+}
+
+std::vector<uint8_t> readWholeBytes(const std::string& path, const std::string& what, uint64_t streamCap) {
+  return readAll<std::vector<uint8_t>>(path, what, streamCap);
 }
 
 }  // namespace iso

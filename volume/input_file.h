@@ -23,10 +23,12 @@ InputFile checkInputFile(const std::string& path, const std::string& what, bool 
 // The whole content: a regular file at its size, a stream up to `streamCap` bytes (one more
 // byte makes it an error that states the cap). The path is checked as above.
 std::string readWholeFile(const std::string& path, const std::string& what, uint64_t streamCap);
+// The same as bytes (a volume's samples are read once, with no copy from a string).
+std::vector<uint8_t> readWholeBytes(const std::string& path, const std::string& what, uint64_t streamCap);
 
 // Caps for streams of text formats (a regular file is read at whatever size it has).
 constexpr uint64_t kSceneStreamCap = uint64_t(64) << 20;    // a scene's JSON
-constexpr uint64_t kMeshStreamCap = uint64_t(1) << 30;      // a glTF's JSON, an OBJ, an MTL, a buffer
+constexpr uint64_t kMeshStreamCap = uint64_t(1) << 30;      // a glTF's JSON, its buffers and images
 constexpr uint64_t kVolumeStreamCap = uint64_t(4) << 30;    // a volume file read whole (NRRD, MHD, VTK)
 
 }  // namespace iso

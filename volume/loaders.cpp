@@ -58,10 +58,7 @@ void readExactly(std::ifstream& in, uint8_t* out, size_t size, const std::string
 }
 
 // A whole file (or a named pipe, up to a cap that the error states).
-Bytes readFile(const std::string& path, uint64_t streamCap = kVolumeStreamCap) {
-  const std::string text = readWholeFile(path, "file", streamCap);
-  return Bytes(text.begin(), text.end());
-}
+Bytes readFile(const std::string& path) { return readWholeBytes(path, "file", kVolumeStreamCap); }
 
 // Inflates gzip or zlib streams (windowBits 32+15 detects either), including concatenated
 // gzip members, handing the output to `sink(bytes, count)` in pieces of at most 64 KiB as it
@@ -892,9 +889,8 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   if (stream) {
     // A named pipe is read no further than the samples allow (with room for gzip's few bytes
     // of framing and stored blocks), then checked like a file.
-    const std::string text = readWholeFile(path, "raw volume of " + layoutName(dims, type) + " (" + std::to_string(expected) + " bytes)",
-                                           uint64_t(expected) + expected / 256 + 65536);
-    const Bytes data(text.begin(), text.end());
+    const Bytes data = readWholeBytes(path, "raw volume of " + layoutName(dims, type) + " (" + std::to_string(expected) + " bytes)",
+                                      uint64_t(expected) + expected / 256 + 65536);
     const bool gzip = data.size() >= 2 && data[0] == 0x1f && data[1] == 0x8b;
     if (!gzip && data.size() != expected) throw InputError(path, "", sizeMismatch(dims, type, data.size(), expected));
     std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
