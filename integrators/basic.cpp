@@ -12,10 +12,11 @@ namespace {
 class NormalsIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
-  void Li(const Ray& ray, Sampler&, RayCounters& counters, SampleResult& out) const override {
-    Hit hit;
-    if (!traceCameraRay(ray, hit, counters, out)) return;
-    out.L = hit.shading;
+  void afterTrace(PathState& p, bool found, const Hit& hit, RayCounters& counters) const override {
+    ++counters.camera;
+    if (!found) return;
+    recordFirstHit(p.ray, hit, p.out);
+    p.out.L = hit.shading;
   }
   bool signedOutput() const override { return true; }
 };
@@ -25,11 +26,12 @@ class NormalsIntegrator final : public Integrator {
 class EyelightIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
-  void Li(const Ray& ray, Sampler&, RayCounters& counters, SampleResult& out) const override {
-    Hit hit;
-    if (!traceCameraRay(ray, hit, counters, out)) return;
-    const float cosine = std::fabs(dot(hit.shading, normalize(ray.dir)));
-    out.L = m_world.albedo(hit) * (0.1f + 0.9f * cosine) + m_world.emitted(hit, -normalize(ray.dir));
+  void afterTrace(PathState& p, bool found, const Hit& hit, RayCounters& counters) const override {
+    ++counters.camera;
+    if (!found) return;
+    recordFirstHit(p.ray, hit, p.out);
+    const float cosine = std::fabs(dot(hit.shading, normalize(p.ray.dir)));
+    p.out.L = m_world.albedo(hit) * (0.1f + 0.9f * cosine) + m_world.emitted(hit, -normalize(p.ray.dir));
   }
 };
 
@@ -38,19 +40,23 @@ class EyelightIntegrator final : public Integrator {
 class AmbientOcclusionIntegrator final : public Integrator {
  public:
   AmbientOcclusionIntegrator(const World& world, float distance) : Integrator(world), m_distance(distance) {}
-  void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override {
-    Hit hit;
-    if (!traceCameraRay(ray, hit, counters, out)) return;
-    const Vec3f wo = -normalize(ray.dir);
+  void afterTrace(PathState& p, bool found, const Hit& hit, RayCounters& counters) const override {
+    ++counters.camera;
+    if (!found) return;
+    recordFirstHit(p.ray, hit, p.out);
+    const Vec3f wo = -normalize(p.ray.dir);
     const Vec3f n = dot(hit.shading, wo) < 0 ? -hit.shading : hit.shading;
     const Frame frame = Frame::fromNormal(n, hit.dpdu);
-    const float u0 = sampler.next(), u1 = sampler.next();
+    const float u0 = p.sampler.next(), u1 = p.sampler.next();
     const Vec3f wi = frame.toWorld(sampleCosineHemisphere(u0, u1));
-    Ray shadow = spawnRay(hit, wi);
-    shadow.tfar = m_distance;
+    p.shadow = spawnRay(hit, wi);
+    p.shadow.tfar = m_distance;
+    p.shadowing = true;
     ++counters.shadow;
-    const float open = m_world.occluded(shadow, counters.traversal) ? 0.f : 1.f;
-    out.L = {open, open, open};
+  }
+  void afterShadow(PathState& p, bool blocked) const override {
+    const float open = blocked ? 0.f : 1.f;
+    p.out.L = {open, open, open};
   }
 
  private:
@@ -58,6 +64,28 @@ class AmbientOcclusionIntegrator final : public Integrator {
 };
 
 }  // namespace
+
+void Integrator::Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const {
+  PathState p;
+  p.ray = ray;
+  p.sampler = sampler;
+  start(p);
+  while (p.tracing || p.shadowing) {
+    if (p.shadowing) {
+      p.shadowing = false;
+      afterShadow(p, m_world.occluded(p.shadow, counters.traversal));
+    }
+    if (p.tracing) {
+      p.tracing = false;
+      Hit hit;
+      const bool found = m_world.intersect(p.ray, hit, counters.traversal);
+      afterTrace(p, found, hit, counters);
+    }
+  }
+  finish(p);
+  out = p.out;
+  sampler = p.sampler;
+}
 
 std::unique_ptr<Integrator> makeIntegrator(const std::string& name, const World& world,
                                            const RenderSettings& settings) {

@@ -1,5 +1,11 @@
 #pragma once
 // An integrator answers one question per camera ray: the radiance along it, Li(ray, sampler).
+// It is written as stages over a PathState (start, afterTrace, afterShadow, finish) so that two
+// ray flows run the same code: Li() traces one path's rays one at a time (the reference,
+// `--ray-flow scalar`), and the wavefront renderer (renderer/render.cpp) keeps many paths in
+// flight and traces their rays stage by stage in packets (`--ray-flow wavefront`). Each path
+// takes its random numbers and adds its radiance in the same order either way, so the two
+// flows give the same image bits.
 // Integrators are chosen by name (integratorList() in scene/scene.h):
 //   normals   shading normal at the first hit (signed, 0 where nothing is hit)
 //   eyelight  base colour lit from the eye, for a quick look
@@ -48,11 +54,43 @@ struct SampleResult {
   float depth = std::numeric_limits<float>::infinity();  // infinity where nothing is hit
 };
 
+// One camera sample in flight. After start() and after each stage, the path asks for its next
+// ray (`tracing`: closest hit of `ray`) and/or a shadow ray (`shadowing`: is `shadow` blocked?);
+// when a stage leaves both false the path is done and finish() writes `out`. A shadow ray asked
+// for together with the next ray is answered first (afterShadow, then afterTrace), as the
+// one-ray loop does it.
+struct PathState {
+  Ray ray;
+  Ray shadow;
+  bool tracing = false;
+  bool shadowing = false;
+  Sampler sampler{0, 0, 0, 0};
+  SampleResult out;
+  // The path integrator's own state (the others use `out` alone).
+  Vec3f L{0, 0, 0}, direct{0, 0, 0}, beta{1, 1, 1};
+  Vec3f previous;          // the last scattering point, for the area light pdf
+  float bsdfPdf = 0;
+  int bounce = 0;          // scattering events so far
+  int segment = 0;         // rays traced so far (thin sheets do not scatter)
+  bool specular = true;    // the last bounce was a delta lobe (or the camera)
+  Vec3f unblocked{0, 0, 0};  // what the waiting shadow ray adds to L if nothing blocks it
+  bool unblockedIsDirect = false;  // ... and to `direct`
+};
+
 class Integrator {
  public:
   explicit Integrator(const World& world) : m_world(world) {}
   virtual ~Integrator() = default;
-  virtual void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const = 0;
+  // The whole path of one camera sample, one ray at a time (the scalar ray flow).
+  void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const;
+
+  // The stages. start: `p.ray` holds the camera ray and `p.sampler` the sample's sampler.
+  virtual void start(PathState& p) const { p.tracing = true; }
+  // The closest hit of p.ray (found, hit); p.tracing is false on entry.
+  virtual void afterTrace(PathState& p, bool found, const Hit& hit, RayCounters& counters) const = 0;
+  // Whether p.shadow is blocked; p.shadowing is false on entry.
+  virtual void afterShadow(PathState&, bool /*blocked*/) const {}
+  virtual void finish(PathState&) const {}
   // True when the output holds signed values (normals) rather than radiance; PNG output
   // then maps [-1, 1] to [0, 1] instead of tone mapping.
   virtual bool signedOutput() const { return false; }
@@ -60,13 +98,6 @@ class Integrator {
   virtual bool splitsDirect() const { return false; }
 
  protected:
-  // The camera ray of a one-hit integrator: counted, traced, its AOVs recorded.
-  bool traceCameraRay(const Ray& ray, Hit& hit, RayCounters& counters, SampleResult& out) const {
-    ++counters.camera;
-    if (!m_world.intersect(ray, hit, counters.traversal)) return false;
-    recordFirstHit(ray, hit, out);
-    return true;
-  }
   void recordFirstHit(const Ray& ray, const Hit& hit, SampleResult& out) const {
     out.albedo = m_world.albedo(hit);
     out.normal = hit.shading;

@@ -12,16 +12,18 @@ class PathIntegrator final : public Integrator {
   // scaled down to at most that in its largest component (Cycles' indirect clamp; biased).
   PathIntegrator(const World& world, int maxDepth, bool splitDirect, float clampIndirect = 0)
       : Integrator(world), m_maxDepth(maxDepth), m_split(splitDirect), m_clamp(clampIndirect) {}
-  void Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const override;
+  void start(PathState& p) const override;
+  void afterTrace(PathState& p, bool found, const Hit& hit, RayCounters& counters) const override;
+  void afterShadow(PathState& p, bool blocked) const override;
+  void finish(PathState& p) const override;
   bool splitsDirect() const override { return m_split; }
 
+ private:
   // One light chosen by power, one sample of it, a shadow ray (for an iso-surface light a
   // ray that must hit it); weighted against BSDF sampling by the power heuristic (delta
-  // lights: weight 1).
-  Vec3f sampleLight(const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, Sampler& sampler,
-                    RayCounters& counters) const;
+  // lights: weight 1). See path.cpp.
+  void sampleLight(PathState& p, const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, RayCounters& counters) const;
 
- private:
   int m_maxDepth;
   bool m_split;
   float m_clamp;

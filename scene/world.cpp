@@ -581,10 +581,29 @@ namespace {
 
 StartClass startClassOf(const Ray& ray) { return ray.fromInside ? StartClass::Inside : StartClass::Outside; }
 
-void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, IsoRayContext& context) {
+void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, IsoRayLane& lane) {
   if (ray.fromSurface < 0) return;
-  context.startSurface = surfaces[ray.fromSurface].surface.get();
-  context.start = startClassOf(ray);
+  lane.startSurface = surfaces[ray.fromSurface].surface.get();
+  lane.start = startClassOf(ray);
+}
+
+void addStats(TraversalStats& to, const TraversalStats& from) {
+  to.cellsVisited += from.cellsVisited;
+  to.cellsSolved += from.cellsSolved;
+  to.rootsRefined += from.rootsRefined;
+}
+
+// Lane i of an Embree packet of width N as a single ray and hit (Embree's rtcGetRayHitFromRayHitN,
+// with the float fields only).
+RTCRayHit laneOf(const RTCRayHit8& packet, unsigned i) {
+  RTCRayHit rh{};
+  rh.ray.tfar = packet.ray.tfar[i];
+  rh.hit.Ng_x = packet.hit.Ng_x[i]; rh.hit.Ng_y = packet.hit.Ng_y[i]; rh.hit.Ng_z = packet.hit.Ng_z[i];
+  rh.hit.u = packet.hit.u[i]; rh.hit.v = packet.hit.v[i];
+  rh.hit.primID = packet.hit.primID[i];
+  rh.hit.geomID = packet.hit.geomID[i];
+  for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l) rh.hit.instID[l] = packet.hit.instID[l][i];
+  return rh;
 }
 
 }  // namespace
@@ -687,27 +706,127 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 }
 
 bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
-  IsoRayContext context;
+  IsoRayLane lane;
+  IsoRayContext context(&lane);
   const Vec3d origin = ray.origin();
-  context.origin = &origin;
-  startFromSurface(ray, m_surfaces, context);
+  lane.origin = &origin;
+  lane.direction = Vec3d(ray.dir);
+  lane.tfar = ray.tfar;
+  startFromSurface(ray, m_surfaces, lane);
   RTCRayHit rh{};
   rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(m_scene, &context.embree, &rh);
-  stats.cellsVisited += context.stats.cellsVisited;
-  stats.cellsSolved += context.stats.cellsSolved;
-  stats.rootsRefined += context.stats.rootsRefined;
+  addStats(stats, context.stats);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  fillHit(ray, rh, lane, hit);
+  return true;
+}
+
+void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const {
+  if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket: 1 to 8 rays");
+  Ray start[kPacket];
+  Vec3d origin[kPacket];
+  IsoRayLane lanes[kPacket];
+  alignas(32) int valid[kPacket] = {};
+  alignas(32) RTCRayHit8 packet;
+  for (int i = 0; i < kPacket; ++i) {
+    packet.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+    packet.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+    packet.ray.tnear[i] = 0;
+    packet.ray.tfar[i] = -INFINITY;
+  }
+  bool any = false;
+  for (int i = 0; i < n; ++i) {
+    found[i] = false;
+    // What intersect() does before Embree: a ray leaving an iso-surface starts on its volume's
+    // box, and may cross at once where its start cell is seen by no brick query.
+    start[i] = startInsideVolume(rays[i]);
+    if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], &hits[i], stats)) {
+      found[i] = true;
+      continue;
+    }
+    origin[i] = start[i].origin();
+    lanes[i].origin = &origin[i];
+    lanes[i].direction = Vec3d(start[i].dir);
+    lanes[i].tfar = start[i].tfar;
+    startFromSurface(start[i], m_surfaces, lanes[i]);
+    const RTCRay r = toEmbree(start[i]);
+    packet.ray.org_x[i] = r.org_x; packet.ray.org_y[i] = r.org_y; packet.ray.org_z[i] = r.org_z;
+    packet.ray.dir_x[i] = r.dir_x; packet.ray.dir_y[i] = r.dir_y; packet.ray.dir_z[i] = r.dir_z;
+    packet.ray.tnear[i] = r.tnear;
+    packet.ray.tfar[i] = r.tfar;
+    packet.ray.mask[i] = r.mask;
+    packet.ray.time[i] = 0;
+    packet.ray.flags[i] = 0;
+    valid[i] = -1;
+    any = true;
+  }
+  if (!any) return;
+  IsoRayContext context(lanes);
+  rtcIntersect8(valid, m_scene, &context.embree, &packet);
+  addStats(stats, context.stats);
+  for (int i = 0; i < n; ++i) {
+    if (!valid[i] || packet.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
+    fillHit(start[i], laneOf(packet, unsigned(i)), lanes[i], hits[i]);
+    found[i] = true;
+  }
+}
+
+void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const {
+  if (n < 1 || n > kPacket) throw std::logic_error("World::occludedPacket: 1 to 8 rays");
+  Ray start[kPacket];
+  Vec3d origin[kPacket];
+  IsoRayLane lanes[kPacket];
+  alignas(32) int valid[kPacket] = {};
+  alignas(32) RTCRay8 packet;
+  for (int i = 0; i < kPacket; ++i) {
+    packet.tnear[i] = 0;
+    packet.tfar[i] = 0;
+  }
+  bool any = false;
+  for (int i = 0; i < n; ++i) {
+    blocked[i] = false;
+    start[i] = startInsideVolume(rays[i]);
+    if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], nullptr, stats)) {
+      blocked[i] = true;
+      continue;
+    }
+    origin[i] = start[i].origin();
+    lanes[i].origin = &origin[i];
+    lanes[i].direction = Vec3d(start[i].dir);
+    lanes[i].tfar = start[i].tfar;
+    startFromSurface(start[i], m_surfaces, lanes[i]);
+    const RTCRay r = toEmbree(start[i]);
+    packet.org_x[i] = r.org_x; packet.org_y[i] = r.org_y; packet.org_z[i] = r.org_z;
+    packet.dir_x[i] = r.dir_x; packet.dir_y[i] = r.dir_y; packet.dir_z[i] = r.dir_z;
+    packet.tnear[i] = r.tnear;
+    packet.tfar[i] = r.tfar;
+    packet.mask[i] = r.mask;
+    packet.time[i] = 0;
+    packet.flags[i] = 0;
+    valid[i] = -1;
+    any = true;
+  }
+  if (!any) return;
+  IsoRayContext context(lanes);
+  rtcOccluded8(valid, m_scene, &context.embree, &packet);
+  addStats(stats, context.stats);
+  for (int i = 0; i < n; ++i)
+    if (valid[i] && packet.tfar[i] < 0) blocked[i] = true;
+}
+
+// The hit Embree found for `ray` (in `rh`), with the lane's iso-surface result.
+void World::fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const {
   const GeometryRecord& rec = recordOf(rh.hit);
   hit = Hit();
   hit.incoming = ray.dir;
   if (!rec.mesh) {
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
-    fillIsoHit(ray, rec.surface, context.t, context.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
-               context.insideAfter, rec.identity ? nullptr : &rec.toWorld, hit);
-    return true;
+    fillIsoHit(ray, rec.surface, lane.t, lane.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
+               lane.insideAfter, rec.identity ? nullptr : &rec.toWorld, hit);
+    return;
   }
   hit.t = rh.ray.tfar;
   hit.material = rec.material;
@@ -766,7 +885,6 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   hit.uv = uv;
   hit.dpdu = dpdu;
   hit.dpdv = dpdv;
-  return true;
 }
 
 bool World::occluded(const Ray& ray, TraversalStats& stats) const {
@@ -803,10 +921,13 @@ bool World::intersectPastThin(const Ray& first, Hit& hit, Vec3f& T, TraversalSta
 }
 
 bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
-  IsoRayContext context;
+  IsoRayLane lane;
+  IsoRayContext context(&lane);
   const Vec3d origin = ray.origin();
-  context.origin = &origin;
-  startFromSurface(ray, m_surfaces, context);
+  lane.origin = &origin;
+  lane.direction = Vec3d(ray.dir);
+  lane.tfar = ray.tfar;
+  startFromSurface(ray, m_surfaces, lane);
   RTCRay r = toEmbree(ray);
   rtcOccluded1(m_scene, &context.embree, &r);
   stats.cellsVisited += context.stats.cellsVisited;

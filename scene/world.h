@@ -83,10 +83,19 @@ class World {
 
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const;
   bool occluded(const Ray& ray, TraversalStats& stats) const;
+  // Up to kPacket rays traced together (Embree's 8-wide packets, rtcIntersect8 / rtcOccluded8):
+  // found[i] and hits[i] (blocked[i]) are what intersect() (occluded()) gives for rays[i] alone,
+  // bit for bit (tests/world_test.cpp: Packets.*). Coherent rays (a camera's 4x2 pixels, rays
+  // towards one light) share the BVH traversal.
+  static constexpr int kPacket = 8;
+  void intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const;
+  void occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const;
   // What of a shadow ray's light arrives: 1 if nothing is in the way, 0 if something opaque
   // (or refracting) is; thin dielectrics ("thin": true) let it through, tinted by their colour
   // and their thin-sheet transmission at each crossing. Without thin materials it is occluded().
   Vec3f transmittance(const Ray& ray, TraversalStats& stats) const;
+  // No thin dielectric in the scene: transmittance() is 1 or 0, i.e. occluded().
+  bool opaqueShadows() const { return !m_hasThin; }
   // The first hit that is not a thin dielectric, and in T what the thin ones before it let
   // through (1 without thin materials: then it is intersect()).
   bool intersectPastThin(const Ray& ray, Hit& hit, Vec3f& T, TraversalStats& stats) const;
@@ -145,6 +154,7 @@ class World {
   unsigned attach(RTCScene scene, RTCGeometry geometry, std::vector<GeometryRecord>& table,
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
+  void fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const;
   void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter,
                   const Transform* toWorld, Hit& hit) const;
   bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;

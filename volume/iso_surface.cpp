@@ -265,46 +265,67 @@ void boundsCallback(const RTCBoundsFunctionArguments* args) {
   args->bounds_o->upper_x = hi[0]; args->bounds_o->upper_y = hi[1]; args->bounds_o->upper_z = hi[2];
 }
 
-// isotrace traces single rays only (rtcIntersect1/rtcOccluded1), so N is always 1.
+// Embree calls these with the rays of one query: N = 1 for rtcIntersect1 / rtcOccluded1, and
+// for rtcIntersect8 / rtcOccluded8 the whole packet (N = 8, lane i of the context for ray i,
+// inactive lanes cleared in `valid`). Each lane is walked by the same scalar query as a single
+// ray, so a ray's answer does not depend on the packet it travels in.
 void intersectCallback(const RTCIntersectFunctionNArguments* args) {
-  if (args->N != 1 || !args->valid[0]) return;
   const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
-  RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
-  RTCRay& ray = rh->ray;
-  SurfaceHit hit;
-  const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray.org_x, ray.org_y, ray.org_z};
-  const Vec3d dir{ray.dir_x, ray.dir_y, ray.dir_z};
-  const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
-  if (!surface->intersectBrick(args->primID, org, dir, ray.tnear,
-                               ray.tfar, hit, context->stats, start, &context->gridRay))
-    return;
-  const float t = float(hit.t);
-  if (!(t >= ray.tnear && t <= ray.tfar)) return;
-  ray.tfar = t;
-  rh->hit.Ng_x = hit.normal.x; rh->hit.Ng_y = hit.normal.y; rh->hit.Ng_z = hit.normal.z;
-  rh->hit.u = 0; rh->hit.v = 0;
-  rh->hit.primID = args->primID;
-  rh->hit.geomID = args->geomID;
-  for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
-    rh->hit.instID[l] = args->context->instID[l];
-  // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
-  context->tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
-  context->t = hit.t;
-  context->insideAfter = hit.insideAfter;
+  const unsigned N = args->N;
+  RTCRayN* rays = RTCRayHitN_RayN(args->rayhit, N);
+  RTCHitN* hits = RTCRayHitN_HitN(args->rayhit, N);
+  for (unsigned i = 0; i < N; ++i) {
+    if (!args->valid[i]) continue;
+    IsoRayLane& lane = context->lanes[i];
+    const Vec3d org = lane.origin ? surface->objectOrigin(*lane.origin)
+                                  : Vec3d{RTCRayN_org_x(rays, N, i), RTCRayN_org_y(rays, N, i), RTCRayN_org_z(rays, N, i)};
+    const Vec3d dir = lane.origin ? surface->objectDirection(lane.direction)
+                                  : Vec3d{RTCRayN_dir_x(rays, N, i), RTCRayN_dir_y(rays, N, i), RTCRayN_dir_z(rays, N, i)};
+    const StartClass start = lane.startSurface == surface ? lane.start : StartClass::Unknown;
+    float& tfar = RTCRayN_tfar(rays, N, i);
+    const float tnear = RTCRayN_tnear(rays, N, i);
+    SurfaceHit hit;
+    if (!surface->intersectBrick(args->primID, org, dir, tnear, lane.tfar, hit, context->stats, start,
+                                 &lane.gridRay))
+      continue;
+    const float t = float(hit.t);
+    if (!(t >= tnear && t <= tfar)) continue;
+    tfar = t;
+    RTCHitN_Ng_x(hits, N, i) = hit.normal.x;
+    RTCHitN_Ng_y(hits, N, i) = hit.normal.y;
+    RTCHitN_Ng_z(hits, N, i) = hit.normal.z;
+    RTCHitN_u(hits, N, i) = 0;
+    RTCHitN_v(hits, N, i) = 0;
+    RTCHitN_primID(hits, N, i) = args->primID;
+    RTCHitN_geomID(hits, N, i) = args->geomID;
+    for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
+      RTCHitN_instID(hits, N, i, l) = args->context->instID[l];
+    // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
+    lane.tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
+    lane.t = hit.t;
+    lane.insideAfter = hit.insideAfter;
+  }
 }
 
 void occludedCallback(const RTCOccludedFunctionNArguments* args) {
-  if (args->N != 1 || !args->valid[0]) return;
   const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
-  RTCRay* ray = reinterpret_cast<RTCRay*>(args->ray);
-  const Vec3d org = context->origin ? surface->objectOrigin(*context->origin) : Vec3d{ray->org_x, ray->org_y, ray->org_z};
-  const Vec3d dir{ray->dir_x, ray->dir_y, ray->dir_z};
-  const StartClass start = context->startSurface == surface ? context->start : StartClass::Unknown;
-  if (surface->occludedBrick(args->primID, org, dir, ray->tnear,
-                             ray->tfar, context->stats, start, &context->gridRay))
-    ray->tfar = -INFINITY;
+  const unsigned N = args->N;
+  RTCRayN* rays = args->ray;
+  for (unsigned i = 0; i < N; ++i) {
+    if (!args->valid[i]) continue;
+    IsoRayLane& lane = context->lanes[i];
+    const Vec3d org = lane.origin ? surface->objectOrigin(*lane.origin)
+                                  : Vec3d{RTCRayN_org_x(rays, N, i), RTCRayN_org_y(rays, N, i), RTCRayN_org_z(rays, N, i)};
+    const Vec3d dir = lane.origin ? surface->objectDirection(lane.direction)
+                                  : Vec3d{RTCRayN_dir_x(rays, N, i), RTCRayN_dir_y(rays, N, i), RTCRayN_dir_z(rays, N, i)};
+    const StartClass start = lane.startSurface == surface ? lane.start : StartClass::Unknown;
+    float& tfar = RTCRayN_tfar(rays, N, i);
+    if (surface->occludedBrick(args->primID, org, dir, RTCRayN_tnear(rays, N, i), lane.tfar, context->stats, start,
+                               &lane.gridRay))
+      tfar = -INFINITY;
+  }
 }
 
 }  // namespace

@@ -3,6 +3,7 @@
 // Embree user geometry whose primitives are those bricks.
 #include <embree3/rtcore.h>
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -37,17 +38,31 @@ struct GridRayCache {
   GridRay<float> ray;
   GridRay<double> ray64;  // the same ray in double: the float traversal's exact ends
 };
-struct IsoRayContext {
-  RTCIntersectContext embree;
+// What the iso-surface callbacks know of one ray of a query, and what they write back: lane i
+// of a packet traced by rtcIntersect8 / rtcOccluded8 (World::intersectPacket), or the one ray
+// of rtcIntersect1.
+struct IsoRayLane {
+  // The ray in world space, in double (set by World for every ray it traces): queries map it
+  // to object space themselves, so that they do not depend on how Embree transformed the ray
+  // into an instance (its packet and single-ray kernels round that differently).
   const Vec3d* origin = nullptr;
+  Vec3d direction;
+  // The ray's far end as traced. Every brick is walked up to it, not up to the closest hit found
+  // so far, so that a hit (its t, its error bound, its normal) does not depend on the order in
+  // which Embree visits bricks and triangles, which differs between packets and single rays.
+  float tfar = INFINITY;
   const IsoSurface* startSurface = nullptr;
   StartClass start = StartClass::Unknown;
   double t = 0;       // the accepted iso-surface hit, in double
   float tError = 0;
   bool insideAfter = false;
-  TraversalStats stats;
   GridRayCache gridRay;
-  IsoRayContext() { rtcInitIntersectContext(&embree); }
+};
+struct IsoRayContext {
+  RTCIntersectContext embree;
+  IsoRayLane* lanes;  // as many as the query's rays
+  TraversalStats stats;
+  explicit IsoRayContext(IsoRayLane* laneData) : lanes(laneData) { rtcInitIntersectContext(&embree); }
 };
 
 class IsoSurface {

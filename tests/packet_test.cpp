@@ -1,0 +1,145 @@
+// Rays traced in Embree packets (World::intersectPacket / occludedPacket) against the same rays
+// traced one at a time: every field of every hit equal bit for bit, on the examples' real
+// meshes and volumes, at the origin and with the whole scene moved 1e5 away, for camera rays
+// in 4x2 pixel packets and for rays spawned from hits (which start on an iso-surface with a
+// given class) in packets of 8 unrelated rays.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+
+#include "integrators/sampler.h"
+#include "scene/world.h"
+#include "tests/test_util.h"
+
+namespace iso {
+namespace {
+
+template <typename T>
+bool sameBits(const T& a, const T& b) {
+  return std::memcmp(&a, &b, sizeof(T)) == 0;
+}
+
+// The fields a caller reads, compared as bits (a NaN equals itself; -0 differs from 0).
+::testing::AssertionResult sameHit(const Hit& a, const Hit& b) {
+  const bool same = sameBits(a.t, b.t) && sameBits(a.tError, b.tError) && sameBits(a.position, b.position) &&
+                    sameBits(a.position64, b.position64) && sameBits(a.pError, b.pError) &&
+                    sameBits(a.normal, b.normal) && sameBits(a.shading, b.shading) && sameBits(a.dpdu, b.dpdu) &&
+                    sameBits(a.dpdv, b.dpdv) && sameBits(a.uv, b.uv) && a.material == b.material &&
+                    a.surface == b.surface && a.mesh == b.mesh && a.light == b.light && a.triangle == b.triangle &&
+                    sameBits(a.b1, b.b1) && sameBits(a.b2, b.b2) && sameBits(a.spawnOffset, b.spawnOffset) &&
+                    sameBits(a.incoming, b.incoming) && a.insideAfter == b.insideAfter;
+  if (same) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "fields t/normal/shading/position64/tError/insideAfter same: "
+                                       << sameBits(a.t, b.t) << sameBits(a.normal, b.normal) << sameBits(a.shading, b.shading)
+                                       << sameBits(a.position64, b.position64) << sameBits(a.tError, b.tError)
+                                       << (a.insideAfter == b.insideAfter) << "; packet t " << a.t << " surface " << a.surface << " mesh " << a.mesh
+                                       << " / single t " << b.t << " surface " << b.surface << " mesh " << b.mesh;
+}
+
+struct Counts {
+  size_t rays = 0, isoHits = 0, meshHits = 0, blocked = 0;
+};
+
+// Camera rays of a w x h image in 4x2 packets, then one spawned ray per hit (random
+// direction, from the hit's own spawnRay) in packets of 8, traced both ways and compared;
+// the spawned rays also as shadow rays.
+Counts comparePacketsWithSingleRays(const SceneDesc& scene, int w, int h, uint32_t seed) {
+  const World world(scene, IntersectorSpec{});
+  const Camera camera(world.camera(), w, h);
+  TraversalStats stats;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u01(0, 1);
+  Counts counts;
+  std::vector<Hit> firstHits;
+  for (int y0 = 0; y0 < h; y0 += 2)
+    for (int x0 = 0; x0 < w; x0 += 4) {
+      Ray rays[World::kPacket];
+      int n = 0;
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 4; ++dx)
+          if (x0 + dx < w && y0 + dy < h) rays[n++] = camera.generateRay(x0 + dx + u01(rng), y0 + dy + u01(rng));
+      Hit hits[World::kPacket];
+      bool found[World::kPacket];
+      world.intersectPacket(rays, n, hits, found, stats);
+      for (int i = 0; i < n; ++i) {
+        Hit single;
+        const bool f = world.intersect(rays[i], single, stats);
+        EXPECT_EQ(found[i], f) << "camera ray at " << x0 << "," << y0 << " lane " << i;
+        if (!f || !found[i]) continue;
+        EXPECT_TRUE(sameHit(hits[i], single)) << "camera ray at " << x0 << "," << y0 << " lane " << i;
+        ++(single.surface >= 0 ? counts.isoHits : counts.meshHits);
+        firstHits.push_back(single);
+      }
+      counts.rays += size_t(n);
+    }
+  for (size_t k = 0; k < firstHits.size(); k += World::kPacket) {
+    const int n = int(std::min<size_t>(World::kPacket, firstHits.size() - k));
+    Ray rays[World::kPacket];
+    for (int i = 0; i < n; ++i) {
+      const Vec3f w = sampleUniformSphere(u01(rng), u01(rng));
+      rays[i] = spawnRay(firstHits[k + size_t(i)], w);
+    }
+    Hit hits[World::kPacket];
+    bool found[World::kPacket], blocked[World::kPacket];
+    world.intersectPacket(rays, n, hits, found, stats);
+    world.occludedPacket(rays, n, blocked, stats);
+    for (int i = 0; i < n; ++i) {
+      Hit single;
+      const bool f = world.intersect(rays[i], single, stats);
+      EXPECT_EQ(found[i], f) << "spawned ray " << k + size_t(i);
+      if (f && found[i]) {
+        EXPECT_TRUE(sameHit(hits[i], single)) << "spawned ray " << k + size_t(i);
+        ++(single.surface >= 0 ? counts.isoHits : counts.meshHits);
+      }
+      EXPECT_EQ(blocked[i], world.occluded(rays[i], stats)) << "spawned ray " << k + size_t(i);
+      counts.blocked += blocked[i];
+    }
+    counts.rays += size_t(n);
+  }
+  return counts;
+}
+
+// Moves everything the scene places by `offset` (meshes, volumes, camera, point lights).
+SceneDesc moved(SceneDesc scene, const Vec3d& offset) {
+  for (MeshDesc& m : scene.meshes) m.transform = Transform::translate(offset) * m.transform;
+  for (VolumeDesc& v : scene.volumes) v.transform = Transform::translate(offset) * v.transform;
+  scene.camera.position = scene.camera.position + offset;
+  scene.camera.lookAt = scene.camera.lookAt + offset;
+  for (LightDesc& l : scene.lights) l.position = l.position + offset;
+  return scene;
+}
+
+TEST(Packets, SameHitsAsSingleRaysOnRealMeshesAndVolumes) {
+  const std::string root = ISOTRACE_SOURCE_DIR;
+  for (const char* file : {"/examples/default.json", "/bench/scenes/neghip.json", "/bench/scenes/lidc2.json"}) {
+    const SceneDesc scene = parseSceneFile(root + file);
+    for (const Vec3d offset : {Vec3d{0, 0, 0}, Vec3d{1e5, -1e5, 1e5}}) {
+      SCOPED_TRACE(std::string(file) + " offset " + std::to_string(offset.x));
+      const Counts c = comparePacketsWithSingleRays(moved(scene, offset), 96, 54, 11);
+      // The comparison means something: both kinds of surface are hit, many times.
+      EXPECT_GT(c.isoHits, 200u);
+      EXPECT_GT(c.meshHits, 200u);
+      EXPECT_GT(c.blocked, 100u);
+      if (HasFailure()) return;
+    }
+  }
+}
+
+// A packet holds 1 to 8 rays; anything else is a programming error, refused.
+TEST(Packets, RefusesMoreThanEightRays) {
+  SceneDesc scene;
+  MeshDesc quad;
+  quad.shape = MeshShape::Quad;
+  scene.meshes.push_back(quad);
+  const World world(scene, IntersectorSpec{});
+  Ray rays[9];
+  Hit hits[9];
+  bool found[9];
+  TraversalStats stats;
+  EXPECT_THROW(world.intersectPacket(rays, 9, hits, found, stats), std::logic_error);
+  EXPECT_THROW(world.occludedPacket(rays, 0, found, stats), std::logic_error);
+}
+
+}  // namespace
+}  // namespace iso
