@@ -91,6 +91,7 @@ class Integrator {
   // Whether p.shadow is blocked; p.shadowing is false on entry.
   virtual void afterShadow(PathState&, bool /*blocked*/) const {}
   virtual void finish(PathState&) const {}
+  const World& world() const { return m_world; }
   // True when the output holds signed values (normals) rather than radiance; PNG output
   // then maps [-1, 1] to [0, 1] instead of tone mapping.
   virtual bool signedOutput() const { return false; }

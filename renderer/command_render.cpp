@@ -25,7 +25,7 @@ namespace iso {
 namespace {
 
 struct RenderFlags {
-  std::string scene, output, integrator, intersector, resolution, aov, stats, tonemap, isoSweep;
+  std::string scene, output, integrator, intersector, rayFlow, resolution, aov, stats, tonemap, isoSweep;
   int spp = 0, threads = -1, maxDepth = 0, frames = 1;
   std::optional<double> orbit;
   long long seed = -1;
@@ -64,6 +64,8 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
     if (!parseIntersector(f.intersector, s.intersector, error))
       throw InputError("--intersector", "", error);
   }
+  if (!f.rayFlow.empty() && !parseRayFlow(f.rayFlow, s.rayFlow))
+    throw InputError("--ray-flow", "", "unknown ray flow '" + f.rayFlow + "' (known: wavefront, scalar)");
   if (!f.resolution.empty()) parseResolution(f.resolution, s.width, s.height);
   // The film costs ~170 bytes per pixel while rendering (the sums of every layer, in double).
   if (double(s.width) * s.height > double(kMaxFilmPixels) && !f.allowLarge)
@@ -145,7 +147,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
   std::fprintf(f,
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
-               "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n"
+               "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n  \"ray_flow\": %s,\n"
                "  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
@@ -153,8 +155,8 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu}\n}\n",
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
-               threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(), s.maxDepth,
-               frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
+               jsonString(rayFlowName(s.rayFlow)).c_str(), s.maxDepth, frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
@@ -258,6 +260,7 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
   r.display = displayFlags(flags, r.output);  // bad names and values before any work
   const RenderSettings& s = r.scene.settings;
+  r.options.rayFlow = s.rayFlow;
   r.options.spp = s.spp;
   r.options.seed = s.seed;
   r.options.threads = s.threads;
@@ -328,6 +331,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
         {"isotrace:integrator", s.integrator},
         {"isotrace:max_depth", std::to_string(s.maxDepth)},
         {"isotrace:intersector", intersectorName(s.intersector)},
+        {"isotrace:ray_flow", rayFlowName(s.rayFlow)},
         {"isotrace:seed", std::to_string(s.seed)}};
     if (s.noiseThreshold > 0) {
       metadata["isotrace:noise_threshold"] = jsonNumber(s.noiseThreshold);
@@ -400,11 +404,11 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     const std::string frameSummary = seq.frames > 1 ? ", " + std::to_string(framesDone) + " frames" : "";
     const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d%s, %s spp, %s, %s, %d threads%s: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: %dx%d%s, %s spp, %s, %s, %s flow, %d threads%s: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
                  "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
                  "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
                  s.width, s.height, frameSummary.c_str(), sppSummary.c_str(), s.integrator.c_str(),
-                 intersectorName(s.intersector).c_str(), threads,
+                 intersectorName(s.intersector).c_str(), rayFlowName(s.rayFlow), threads,
                  job.distributed() ? (" x " + std::to_string(job.size()) + " ranks").c_str() : "", loadSeconds, buildSeconds, total.seconds, seconds,
                  (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
                  total.seconds > 0 ? rays / total.seconds * 1e-6 : 0.0,
@@ -515,6 +519,7 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_option("--aov", f.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance, samples");
   cmd->add_option("--stats", f.stats, "write times, ray counts and counters as JSON to this file");
   cmd->add_option("--intersector", f.intersector, std::string("intersector: ") + intersectorList());
+  cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: paths in flight, rays traced in packets) or scalar (one ray at a time, the reference); the same image");
   cmd->add_option("--resolution", f.resolution, "image size WIDTHxHEIGHT");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--seed", f.seed, "random seed (0 to 2^62)")->check(CLI::Range(0LL, 1LL << 62));

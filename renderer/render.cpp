@@ -56,9 +56,48 @@ bool TileRenderer::converges(const PixelSums& p) const {
   return std::sqrt(variance / n) <= m_options.noiseThreshold * std::max(mean, 0.01);
 }
 
+namespace {
+
+// Adds one sample to its pixel's sums (both ray flows, in sample order).
+void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
+  const bool background = !std::isfinite(result.depth);
+  const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
+  p.L += L;
+  p.L2 += L * L;
+  const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
+  p.luminance += lum;
+  p.luminance2 += lum * lum;
+  p.direct += Vec3d(result.direct);
+  p.albedo += Vec3d(result.albedo);
+  p.normal += Vec3d(result.normal);
+  if (!background) {
+    p.depth += result.depth;
+    ++p.depthHits;
+  }
+  ++p.samples;
+}
+
+// The paths of one tile's pass, reused from pass to pass by each thread: at most
+// kTile^2 pixels x 16 samples (the largest pass) = 4,096 paths, ~1.3 MiB, whatever the image size.
+struct Wavefront {
+  std::vector<PathState> paths;
+  std::vector<int> queue;
+  std::vector<std::pair<int, int>> pixels;  // the open pixels (x, y)
+};
+thread_local Wavefront t_wavefront;
+
+}  // namespace
+
 uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
                                   bool stopPerPixel) const {
   const Rect r = rect(tile);
+  if (m_options.rayFlow == RayFlow::Scalar) return renderPassScalar(r, s0, s1, sums, stride, counters, stopPerPixel);
+  if (stopPerPixel && stopRequested()) return 0;
+  return renderPassWavefront(r, s0, s1, sums, stride, counters);
+}
+
+uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
+                                        RayCounters& counters, bool stopPerPixel) const {
   uint64_t taken = 0;
   for (int y = r.y0; y < r.y1; ++y)
     for (int x = r.x0; x < r.x1; ++x) {
@@ -70,25 +109,114 @@ uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, siz
         const float jx = sampler.next(), jy = sampler.next();
         SampleResult result;
         m_integrator.Li(m_camera.generateRay(x + jx, y + jy), sampler, counters, result);
-        const bool background = !std::isfinite(result.depth);
-        const Vec3d L = m_options.alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
-        p.L += L;
-        p.L2 += L * L;
-        const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
-        p.luminance += lum;
-        p.luminance2 += lum * lum;
-        p.direct += Vec3d(result.direct);
-        p.albedo += Vec3d(result.albedo);
-        p.normal += Vec3d(result.normal);
-        if (!background) {
-          p.depth += result.depth;
-          ++p.depthHits;
-        }
-        ++p.samples;
+        addSample(p, result, m_options.alpha);
       }
       taken += uint64_t(s1 - s0);
     }
   return taken;
+}
+
+// The wavefront flow: every open pixel's samples [s0, s1) of the tile are paths in flight. Camera
+// rays go to Embree in 4x2 pixel packets of one sample index; then, until no path asks for a
+// ray, the shadow rays of all paths are traced, then their next rays, each queue in packets of 8
+// in path order. The integrator's stages do the rest, path by path, in the order Li would.
+uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
+                                           RayCounters& counters) const {
+  Wavefront& wf = t_wavefront;
+  const World& world = m_integrator.world();
+  wf.pixels.clear();
+  for (int y = r.y0; y < r.y1; ++y)
+    for (int x = r.x0; x < r.x1; ++x)
+      if (!sums[size_t(y - r.y0) * stride + size_t(x - r.x0)].converged) wf.pixels.emplace_back(x, y);
+  const int ns = s1 - s0;
+  const size_t count = wf.pixels.size() * size_t(ns);
+  if (count == 0) return 0;
+  wf.paths.assign(count, PathState());
+  // The open pixels' index in wf.pixels by position in the tile (-1: converged).
+  int slot[kTile][kTile];
+  for (auto& row : slot) std::fill(std::begin(row), std::end(row), -1);
+  for (size_t i = 0; i < wf.pixels.size(); ++i) slot[wf.pixels[i].second - r.y0][wf.pixels[i].first - r.x0] = int(i);
+
+  Ray rays[World::kPacket];
+  Hit hits[World::kPacket];
+  bool found[World::kPacket];
+  int lanes[World::kPacket];
+  auto traceLanes = [&](int n) {
+    world.intersectPacket(rays, n, hits, found, counters.traversal);
+    for (int i = 0; i < n; ++i) m_integrator.afterTrace(wf.paths[size_t(lanes[i])], found[i], hits[i], counters);
+  };
+
+  // Camera rays, 4x2 pixels of one sample index per packet.
+  for (int s = s0; s < s1; ++s)
+    for (int by = r.y0; by < r.y1; by += 2)
+      for (int bx = r.x0; bx < r.x1; bx += 4) {
+        int n = 0;
+        for (int y = by; y < std::min(by + 2, r.y1); ++y)
+          for (int x = bx; x < std::min(bx + 4, r.x1); ++x) {
+            const int pixel = slot[y - r.y0][x - r.x0];
+            if (pixel < 0) continue;
+            const int index = pixel * ns + (s - s0);
+            PathState& p = wf.paths[size_t(index)];
+            p.sampler = Sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
+            const float jx = p.sampler.next(), jy = p.sampler.next();
+            p.ray = m_camera.generateRay(x + jx, y + jy);
+            m_integrator.start(p);
+            if (!p.tracing) continue;
+            p.tracing = false;
+            rays[n] = p.ray;
+            lanes[n++] = index;
+          }
+        if (n > 0) traceLanes(n);
+      }
+
+  // Then shadow rays and continuation rays, until every path is done.
+  for (;;) {
+    wf.queue.clear();
+    for (size_t i = 0; i < count; ++i)
+      if (wf.paths[i].shadowing) wf.queue.push_back(int(i));
+    for (size_t k = 0; k < wf.queue.size(); k += World::kPacket) {
+      const int n = int(std::min<size_t>(World::kPacket, wf.queue.size() - k));
+      bool blocked[World::kPacket];
+      for (int i = 0; i < n; ++i) {
+        PathState& p = wf.paths[size_t(wf.queue[k + size_t(i)])];
+        p.shadowing = false;
+        rays[i] = p.shadow;
+      }
+      world.occludedPacket(rays, n, blocked, counters.traversal);
+      for (int i = 0; i < n; ++i) m_integrator.afterShadow(wf.paths[size_t(wf.queue[k + size_t(i)])], blocked[i]);
+    }
+    wf.queue.clear();
+    for (size_t i = 0; i < count; ++i)
+      if (wf.paths[i].tracing) wf.queue.push_back(int(i));
+    if (wf.queue.empty()) {
+      bool shadows = false;
+      for (size_t i = 0; i < count && !shadows; ++i) shadows = wf.paths[i].shadowing;
+      if (!shadows) break;
+      continue;
+    }
+    for (size_t k = 0; k < wf.queue.size(); k += World::kPacket) {
+      const int n = int(std::min<size_t>(World::kPacket, wf.queue.size() - k));
+      for (int i = 0; i < n; ++i) {
+        lanes[i] = wf.queue[k + size_t(i)];
+        PathState& p = wf.paths[size_t(lanes[i])];
+        p.tracing = false;
+        rays[i] = p.ray;
+      }
+      traceLanes(n);
+    }
+  }
+
+  // Sums in pixel order, each pixel's samples in sample order: the scalar flow's order.
+  for (size_t pixel = 0; pixel < wf.pixels.size(); ++pixel) {
+    const auto [px, py] = wf.pixels[pixel];
+    PixelSums& sum = sums[size_t(py - r.y0) * stride + size_t(px - r.x0)];
+    for (int s = 0; s < ns; ++s) {
+      PathState& p = wf.paths[pixel * size_t(ns) + size_t(s)];
+      m_integrator.finish(p);
+      addSample(sum, p.out, m_options.alpha);
+    }
+  }
+  return count;
 }
 
 bool TileRenderer::renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums,

@@ -16,6 +16,10 @@
 namespace iso {
 
 struct RenderOptions {
+  // How rays are traced: one path at a time (the reference), or a tile's paths in flight at
+  // once, their rays traced stage by stage in Embree packets (RayFlow in scene/scene.h). The
+  // image bits are the same either way.
+  RayFlow rayFlow = RayFlow::Wavefront;
   int spp = 4;
   uint64_t seed = 0;
   int threads = 0;  // 0: all cores
@@ -77,6 +81,7 @@ class TileRenderer {
   // Samples [s0, s1) of every pixel of `tile` that has not converged, into `sums` (pixel (x0,
   // y0) of the tile at sums[0], rows `stride` apart). `stopPerPixel`: a stop request ends the
   // tile at the next pixel instead of the next tile. Returns the samples taken.
+  // With the wavefront flow a stop request is looked at once, before the tile's pass.
   uint64_t renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
                       bool stopPerPixel = false) const;
   // Passes of `tile` from pass `pass` (its first sample `s0`) on, with the adaptive test after
@@ -90,6 +95,11 @@ class TileRenderer {
   bool converges(const PixelSums& p) const;
 
  private:
+  uint64_t renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
+                            bool stopPerPixel) const;
+  uint64_t renderPassWavefront(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
+                               RayCounters& counters) const;
+
   const Camera& m_camera;
   const Integrator& m_integrator;
   const RenderOptions& m_options;

@@ -402,6 +402,7 @@ void ViewSession::run() {
       cameraDesc = cameraOf(desc, *world);
       camera = std::make_unique<Camera>(cameraDesc, m_width, m_height);
       options = RenderOptions();
+      options.rayFlow = desc.settings.rayFlow;
       options.spp = desc.settings.spp;
       options.seed = desc.settings.seed;
       sums.assign(size_t(m_width) * m_height, PixelSums());

@@ -62,6 +62,13 @@ struct MeshDesc {
   std::string materialWhere;
 };
 
+// How the renderer traces rays (`--ray-flow`, the scene's "integrator": {"ray_flow": ...}):
+// `wavefront` keeps a tile's paths in flight and traces their rays stage by stage in Embree
+// packets; `scalar` traces each path's rays one at a time (the reference). Same image bits.
+enum class RayFlow { Wavefront, Scalar };
+const char* rayFlowName(RayFlow f);
+bool parseRayFlow(const std::string& name, RayFlow& flow);
+
 enum class LightType { Point, Spot, Directional, Environment };
 
 struct LightDesc {
@@ -104,6 +111,7 @@ struct RenderSettings {
   // Adaptive sampling: a pixel stops once the standard error of its mean luminance is at most
   // this share of the mean (0: off; every pixel takes spp).
   double noiseThreshold = 0;
+  RayFlow rayFlow = RayFlow::Wavefront;
 };
 
 struct SceneDesc {

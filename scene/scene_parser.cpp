@@ -313,6 +313,14 @@ std::string materialRef(ObjectReader& r, std::string& where) {
 
 }  // namespace
 
+const char* rayFlowName(RayFlow f) { return f == RayFlow::Scalar ? "scalar" : "wavefront"; }
+bool parseRayFlow(const std::string& name, RayFlow& flow) {
+  if (name == "wavefront") flow = RayFlow::Wavefront;
+  else if (name == "scalar") flow = RayFlow::Scalar;
+  else return false;
+  return true;
+}
+
 const char* integratorList() { return "normals, eyelight, ao, direct, path, compare"; }
 bool isKnownIntegrator(const std::string& name) {
   for (const char* known : {"normals", "eyelight", "ao", "direct", "path", "compare"})
@@ -382,7 +390,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   }
   if (const Json* j = r.get("integrator")) {
     ObjectReader in(*j, "/integrator", path,
-                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold"});
+                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold", "ray_flow"});
     scene.settings.integrator = in.string("type", scene.settings.integrator);
     if (!isKnownIntegrator(scene.settings.integrator))
       in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
@@ -393,6 +401,9 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     scene.settings.seed = uint64_t(in.integer("seed", 0, 0, 1 << 30));
     scene.settings.clampIndirect = in.number("clamp", 0, 0, 1e30);
     scene.settings.noiseThreshold = in.number("noise_threshold", 0, 0, 1);
+    const std::string flow = in.string("ray_flow", rayFlowName(scene.settings.rayFlow));
+    if (!parseRayFlow(flow, scene.settings.rayFlow))
+      in.fail("/integrator/ray_flow", "unknown ray flow '" + flow + "' (known: wavefront, scalar)");
     in.finish();
   }
   if (const Json* j = r.get("intersector")) {

@@ -96,6 +96,7 @@ TEST(Cli, BadFlagsExitWithStatus2) {
   test::writeText(path, scene(R"({"procedural": {"field": "sphere", "resolution": [8,8,8]}, "isosurfaces": [{"value": 0.5}]})"));
   expectBadInput(dir, path + " --intersector cubic", "unknown intersector 'cubic'");
   expectBadInput(dir, path + " --integrator magic", "unknown integrator 'magic'");
+  expectBadInput(dir, path + " --ray-flow packets", "--ray-flow: unknown ray flow 'packets' (known: wavefront, scalar)");
   expectBadInput(dir, path + " --resolution 10by10", "expected WIDTHxHEIGHT");
   expectBadInput(dir, path + " --tonemap reinhard", "--tonemap: unknown curve 'reinhard' (known: clamp, aces, filmic)");
   expectBadInput(dir, path + " --exposure nan", "--exposure: expected EV in [-30, 30]");

@@ -18,7 +18,7 @@ namespace {
 const char* kFullScene = R"({
   "camera": { "position": [1, 2, 3], "look_at": [0, 1, 0], "up": [0, 0, 1], "fov": 35 },
   "film": { "width": 320, "height": 200 },
-  "integrator": { "type": "normals", "spp": 16, "max_depth": 7, "ao_distance": 2.5, "seed": 9 },
+  "integrator": { "type": "normals", "spp": 16, "max_depth": 7, "ao_distance": 2.5, "seed": 9, "ray_flow": "scalar" },
   "intersector": "neubauer:5",
   "meshes": [
     { "file": "models/a.glb", "transform": { "translate": [1, 2, 3], "rotate": { "axis": [0, 1, 0], "degrees": 90 }, "scale": 2 }, "material": "red" },
@@ -61,6 +61,7 @@ TEST(SceneFormat, EveryDocumentedKeyIsRead) {
   EXPECT_EQ(s.settings.maxDepth, 7);
   EXPECT_EQ(s.settings.aoDistance, 2.5);
   EXPECT_EQ(s.settings.seed, 9u);
+  EXPECT_EQ(s.settings.rayFlow, RayFlow::Scalar);
   EXPECT_EQ(s.settings.intersector.kind, IntersectorKind::Neubauer);
   EXPECT_EQ(s.settings.intersector.iterations, 5);
 
@@ -188,6 +189,8 @@ TEST(SceneFormat, ErrorsNameTheirJsonPath) {
   expectError(R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": [{"value": 0.5, "material": "x"}]}]})",
               "/volumes/0/isosurfaces/0/material", "undefined material 'x'");
   expectError(R"({"lights": [{"type": "area"}]})", "/lights/0/type", "unknown value 'area'");
+  expectError(R"({"integrator": {"ray_flow": "packets"}})", "/integrator/ray_flow", "unknown ray flow 'packets'");
+  expectError(R"({"integrator": {"ray_flow": 1}})", "/integrator/ray_flow", "string");
   expectError(R"({"materials": {"g": {"type": "dielectric", "ior": 0.5}}})", "/materials/g/ior", "out of range");
   expectError(R"({"meshes": [{"shape": "quad", "transform": {"matrix": [1,0,0,0, 0,1,0,0, 0,0,0,0, 0,0,0,1]}}]})",
               "/meshes/0/transform/matrix", "not invertible");
