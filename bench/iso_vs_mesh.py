@@ -13,7 +13,11 @@ the volumes; then both are rendered with the same camera, lights, spp and seed, 
 Prints per scene and mode the median render seconds, rays per second, the iso/mesh ratio of
 the medians and the relative image difference (mean |iso - mesh| / mean mesh, path mode).
 Usage: bench/iso_vs_mesh.py [--runs N] [--resolution WxH] [--modes path,camera,shadow]
-       [--json FILE] [--isotrace BINARY] [--instructions] [SCENE.json ...]
+       [--json FILE] [--isotrace BINARY] [--instructions] [--ray-flow F | --flows] [SCENE.json ...]
+--ray-flow renders every image with that ray flow (wavefront, the default, or scalar).
+--flows measures both flows of the same build, interleaved (iso scalar, iso wavefront, mesh
+scalar, mesh wavefront, ...): the speed-up of the wavefront flow for each twin, and the iso/mesh
+ratio within each flow; with --instructions, instruction counts of the same four renders.
 --isotrace renders with another build (e.g. an older commit's, to compare before and after;
 the meshes are always extracted with this checkout's build/isotrace).
 --instructions counts instructions instead of seconds: each twin is rendered once under
@@ -101,25 +105,30 @@ def mode_scene(path, mode, work):
 RENDERER = ISOTRACE
 
 
+RAY_FLOW = []  # ["--ray-flow", F] when --ray-flow is given
+
+
 def render(scene, extra, resolution, image, stats):
     run([RENDERER, "render", scene, "-o", image, "--resolution", resolution, "--quiet", "--seed", "7",
-         "--stats", stats] + extra)
+         "--stats", stats] + extra + RAY_FLOW)
     with open(stats) as f:
         s = json.load(f)
     return s["seconds"]["render"], s["rays"]
 
 
-# The per-ray function of each mode's integrator: callgrind counts only while it runs.
-INTEGRATOR_SYMBOL = {"path": "iso::PathIntegrator::Li*", "camera": "*NormalsIntegrator::Li*",
-                     "shadow": "*AmbientOcclusionIntegrator::Li*"}
+# Callgrind counts only inside a tile's pass (TileRenderer::renderPass: the camera rays, the
+# integrator's stages and every ray they trace, in either ray flow), so that loading, building and
+# writing the image are left out.
+COUNTED_SYMBOL = "iso::TileRenderer::renderPass*"
 
 
-def count_instructions(scene, mode, resolution, image, work):
-    """Instructions executed inside the integrator's Li for one render (callgrind)."""
+def count_instructions(scene, mode, resolution, image, work, flow=None):
+    """Instructions executed inside the tiles' passes for one render (callgrind)."""
     out = os.path.join(work, "callgrind.out")
     run(["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out,
-         "--toggle-collect=" + INTEGRATOR_SYMBOL[mode], RENDERER, "render", scene, "-o", image,
-         "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"])
+         "--toggle-collect=" + COUNTED_SYMBOL, RENDERER, "render", scene, "-o", image,
+         "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"] +
+        (["--ray-flow", flow] if flow else RAY_FLOW))
     with open(out) as f:
         for line in f:
             if line.startswith("totals:") or line.startswith("summary:"):
@@ -177,6 +186,33 @@ def measure_instructions(name, mode, scenes_of_mode, triangles, resolution, runs
     return line, {"iso_instructions": counts["iso"], "mesh_instructions": counts["mesh"], "ratio": ratio}
 
 
+FLOWS_HEADER = "%-12s %-7s %9s %9s %8s %9s %9s %8s %9s %9s" % (
+    "scene", "mode", "iso scal", "iso wave", "speedup", "mesh scal", "mesh wave", "speedup", "i/m scal", "i/m wave")
+
+
+def measure_flows(name, mode, scenes_of_mode, triangles, resolution, runs, work, instructions=False):
+    """Both ray flows of both twins, interleaved: medians (or instruction counts), speed-ups, ratios."""
+    values = {(kind, flow): [] for kind in ("iso", "mesh") for flow in ("scalar", "wavefront")}
+    for r in range(1 if instructions else runs):
+        for kind in ("iso", "mesh"):
+            s, extra = scenes_of_mode[kind]
+            for flow in ("scalar", "wavefront"):
+                image = os.path.join(work, "%s.%s.%s.%s.exr" % (name, mode, kind, flow))
+                if instructions:
+                    values[(kind, flow)].append(count_instructions(s, mode, resolution, image, work, flow) / 1e6)
+                else:
+                    seconds, _ = render(s, extra + ["--ray-flow", flow], resolution, image,
+                                        os.path.join(work, "stats.json"))
+                    values[(kind, flow)].append(seconds)
+    med = {k: statistics.median(v) for k, v in values.items()}
+    line = "%-12s %-7s %9.3f %9.3f %8.2f %9.3f %9.3f %8.2f %9.2f %9.2f" % (
+        name, mode, med[("iso", "scalar")], med[("iso", "wavefront")],
+        med[("iso", "scalar")] / med[("iso", "wavefront")], med[("mesh", "scalar")], med[("mesh", "wavefront")],
+        med[("mesh", "scalar")] / med[("mesh", "wavefront")], med[("iso", "scalar")] / med[("mesh", "scalar")],
+        med[("iso", "wavefront")] / med[("mesh", "wavefront")])
+    return line, {"%s_%s" % k: v for k, v in values.items()}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*")
@@ -185,13 +221,17 @@ def main():
     parser.add_argument("--modes", default="path,camera,shadow")
     parser.add_argument("--json")
     parser.add_argument("--isotrace", help="the isotrace binary that renders (default: build/isotrace)")
+    parser.add_argument("--ray-flow", choices=("wavefront", "scalar"))
+    parser.add_argument("--flows", action="store_true", help="measure both ray flows, interleaved")
     parser.add_argument("--instructions", action="store_true",
                         help="count instructions under callgrind instead of timing renders")
     args = parser.parse_args()
     if args.instructions and not shutil.which("valgrind"):
         sys.exit("iso_vs_mesh: --instructions needs valgrind (apt-get install valgrind)")
     resolution = args.resolution or ("160x90" if args.instructions else "960x540")
-    global RENDERER
+    global RENDERER, RAY_FLOW
+    if args.ray_flow:
+        RAY_FLOW = ["--ray-flow", args.ray_flow]
     if args.isotrace:
         RENDERER = os.path.abspath(args.isotrace)
     if args.runs < 1:
@@ -203,9 +243,11 @@ def main():
         if m not in ("path", "camera", "shadow"):
             sys.exit("iso_vs_mesh: unknown mode '%s' (path, camera, shadow)" % m)
     measure = measure_instructions if args.instructions else measure_seconds
+    if args.flows:
+        measure = lambda *a: measure_flows(*a, instructions=args.instructions)
     results = []
     with tempfile.TemporaryDirectory() as work:
-        print(INSTRUCTIONS_HEADER if args.instructions else SECONDS_HEADER)
+        print(FLOWS_HEADER if args.flows else INSTRUCTIONS_HEADER if args.instructions else SECONDS_HEADER)
         for scene in scenes:
             name, iso_path, mesh_path, triangles = twin_scenes(scene, work)
             for mode in modes:

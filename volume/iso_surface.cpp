@@ -1,5 +1,7 @@
 #include "volume/iso_surface.h"
 
+#include "volume/packet_walk.h"
+
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -91,6 +93,38 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
   for (size_t i = 0; i < m_active.size(); ++i) m_primitiveOf[m_active[i]] = int32_t(i);
 }
 
+void IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
+                               GridRayCache* cache, GridRay<float>& ray, ExactEnds& exact) const {
+  // The float ray is the double one rounded (what queryRay<float> gives); the double one
+  // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
+  GridRay<double> ray64;
+  if (cache && cache->surface == this) {
+    ray = cache->ray;
+    ray64 = cache->ray64;
+  } else {
+    ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
+    ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
+    if (cache) *cache = {this, ray, ray64};
+  }
+  exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
+}
+
+template <typename Real, typename Cells>
+void IsoSurface::surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, const Vec3d& dir, SurfaceHit& hit) const {
+  Real g[8];
+  cells.load(cellHit.cell, Real(m_iso), g);
+  const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
+  const double len = length(grad);
+  // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
+  // a tiny direction does not underflow to a NaN.
+  const double dirScale = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
+  hit.normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir / dirScale));
+  hit.t = double(cellHit.t);
+  hit.tError = double(cellHit.tError);
+  hit.tangent = cellHit.tangent;
+  hit.insideAfter = cellHit.insideAfter;
+}
+
 template <bool AnyHit>
 bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin,
                        const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit,
@@ -102,40 +136,15 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       GridRay<Real> ray;
       ExactEnds exact;
-      if constexpr (std::is_same_v<Real, float>) {
-        // The float ray is the double one rounded (what queryRay<float> gives); the double one
-        // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
-        GridRay<double> ray64;
-        if (cache && cache->surface == this) {
-          ray = cache->ray;
-          ray64 = cache->ray64;
-        } else {
-          ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
-          ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
-          if (cache) *cache = {this, ray, ray64};
-        }
-        exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
-      } else {
+      if constexpr (std::is_same_v<Real, float>)
+        floatQueryRay(org, dir, tnear, tfar, start, cache, ray, exact);
+      else
         ray = queryRay<Real>(m_grid, org, dir, tnear, start);
-      }
       CellHit<Real> cellHit;
       if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
                                  cellHit, stats, start, std::is_same_v<Real, float> ? &exact : nullptr))
         return false;
-      if constexpr (!AnyHit) {
-        Real g[8];
-        cells.load(cellHit.cell, Real(m_iso), g);
-        const Vec3d grad = Vec3d(trilinearGradient(g, cellHit.local)) / m_grid.spacing();
-        const double len = length(grad);
-        // Without a gradient (a flat spot) the normal faces the ray; dir is scaled first so that
-        // a tiny direction does not underflow to a NaN.
-        const double dirScale = std::max({std::fabs(dir.x), std::fabs(dir.y), std::fabs(dir.z)});
-        hit->normal = len > 0 && std::isfinite(len) ? Vec3f(-grad / len) : Vec3f(-normalize(dir / dirScale));
-        hit->t = double(cellHit.t);
-        hit->tError = double(cellHit.tError);
-        hit->tangent = cellHit.tangent;
-        hit->insideAfter = cellHit.insideAfter;
-      }
+      if constexpr (!AnyHit) surfaceHit(cells, cellHit, dir, *hit);
       return true;
     });
   };
@@ -147,6 +156,66 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
     case IntersectorKind::Reference: return run(0.0, ReferenceIntersector{});
   }
   return false;
+}
+
+template <bool AnyHit>
+uint32_t IsoSurface::packetQuery(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
+                                 TraversalStats& stats) const {
+  const Primitive& p = m_primitives[primitive];
+  uint32_t found = 0;
+  if (m_spec.kind == IntersectorKind::Reference) {  // double precision: lane by lane
+    for (uint32_t rest = mask; rest; rest &= rest - 1) {
+      const int l = __builtin_ctz(rest);
+      const PacketLane& r = lanes[l];
+      const bool yes = query<AnyHit>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, r.org, r.dir, r.tnear,
+                                     r.tfar, AnyHit ? nullptr : &hits[l], stats, r.start, r.cache);
+      found |= uint32_t(yes) << l;
+    }
+    return found;
+  }
+  auto run = [&](const auto& solver) {
+    return withCellAccess(m_grid, &m_cellClasses[primitive], p.brickOrigin, [&](const auto& cells) {
+      using Cells = std::decay_t<decltype(cells)>;
+      GridRay<float> rays[kPacketLanes];
+      ExactEnds exact[kPacketLanes];
+      CellWalk<float, Cells> walks[kPacketLanes];
+      CellHit<float> cellHits[kPacketLanes];
+      uint32_t live = 0;
+      for (uint32_t rest = mask; rest; rest &= rest - 1) {
+        const int l = __builtin_ctz(rest);
+        const PacketLane& r = lanes[l];
+        floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays[l], exact[l]);
+        walks[l] = CellWalk<float, Cells>(cells, float(m_iso), rays[l], p.lo, p.hi, float(r.tnear), float(r.tfar),
+                                          r.start, &exact[l]);
+        if (walks[l].begin()) live |= 1u << l;
+      }
+      const uint32_t yes = traversePacket<AnyHit>(walks, live, solver, cellHits, stats);
+      if constexpr (!AnyHit)
+        for (uint32_t rest = yes; rest; rest &= rest - 1) {
+          const int l = __builtin_ctz(rest);
+          surfaceHit(cells, cellHits[l], lanes[l].dir, hits[l]);
+        }
+      return yes;
+    });
+  };
+  switch (m_spec.kind) {
+    case IntersectorKind::Linear: return run(LaneByLane<LinearIntersector>{{}});
+    case IntersectorKind::Neubauer: return run(LaneByLane<NeubauerIntersector>{{m_spec.iterations}});
+    case IntersectorKind::Schwarze: return run(LaneByLane<SchwarzeIntersector>{{}});
+    case IntersectorKind::Isolation: return run(IsolationPacket{m_spec.iterations});
+    case IntersectorKind::Reference: break;
+  }
+  return 0;
+}
+
+uint32_t IsoSurface::intersectBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
+                                          TraversalStats& stats) const {
+  return packetQuery<false>(primitive, lanes, mask, hits, stats);
+}
+
+uint32_t IsoSurface::occludedBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask,
+                                         TraversalStats& stats) const {
+  return packetQuery<true>(primitive, lanes, mask, nullptr, stats);
 }
 
 bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
@@ -269,28 +338,51 @@ void boundsCallback(const RTCBoundsFunctionArguments* args) {
 // for rtcIntersect8 / rtcOccluded8 the whole packet (N = 8, lane i of the context for ray i,
 // inactive lanes cleared in `valid`). Each lane is walked by the same scalar query as a single
 // ray, so a ray's answer does not depend on the packet it travels in.
+// A lane's ray as the iso-surface queries take it: in object space, in double, from the world
+// ray World put in the lane, with the lane's own far end.
+IsoSurface::PacketLane packetLane(const IsoSurface& surface, IsoRayLane& lane, RTCRayN* rays, unsigned N, unsigned i) {
+  IsoSurface::PacketLane r;
+  r.org = lane.origin ? surface.objectOrigin(*lane.origin)
+                      : Vec3d{RTCRayN_org_x(rays, N, i), RTCRayN_org_y(rays, N, i), RTCRayN_org_z(rays, N, i)};
+  r.dir = lane.origin ? surface.objectDirection(lane.direction)
+                      : Vec3d{RTCRayN_dir_x(rays, N, i), RTCRayN_dir_y(rays, N, i), RTCRayN_dir_z(rays, N, i)};
+  r.tnear = RTCRayN_tnear(rays, N, i);
+  r.tfar = lane.tfar;
+  r.start = lane.startSurface == &surface ? lane.start : StartClass::Unknown;
+  r.cache = &lane.gridRay;
+  return r;
+}
+
+// Embree calls these with the rays of one query: N = 1 for rtcIntersect1 / rtcOccluded1, and
+// for rtcIntersect8 / rtcOccluded8 the whole packet (N = 8, lane i of the context for ray i,
+// inactive lanes cleared in `valid`), whose lanes are walked together (intersectBrickPacket).
+// A lane gets the answer its ray would get alone.
 void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   const auto* surface = static_cast<const IsoSurface*>(args->geometryUserPtr);
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
   const unsigned N = args->N;
   RTCRayN* rays = RTCRayHitN_RayN(args->rayhit, N);
   RTCHitN* hits = RTCRayHitN_HitN(args->rayhit, N);
-  for (unsigned i = 0; i < N; ++i) {
+  IsoSurface::PacketLane lanes[kPacketLanes];
+  SurfaceHit found[kPacketLanes];
+  uint32_t mask = 0;
+  for (unsigned i = 0; i < std::min(N, unsigned(kPacketLanes)); ++i) {  // World traces 1 or 8 rays at once
     if (!args->valid[i]) continue;
-    IsoRayLane& lane = context->lanes[i];
-    const Vec3d org = lane.origin ? surface->objectOrigin(*lane.origin)
-                                  : Vec3d{RTCRayN_org_x(rays, N, i), RTCRayN_org_y(rays, N, i), RTCRayN_org_z(rays, N, i)};
-    const Vec3d dir = lane.origin ? surface->objectDirection(lane.direction)
-                                  : Vec3d{RTCRayN_dir_x(rays, N, i), RTCRayN_dir_y(rays, N, i), RTCRayN_dir_z(rays, N, i)};
-    const StartClass start = lane.startSurface == surface ? lane.start : StartClass::Unknown;
+    lanes[i] = packetLane(*surface, context->lanes[i], rays, N, i);
+    mask |= 1u << i;
+  }
+  if (N == 1) {
+    mask = mask && surface->intersectBrick(args->primID, lanes[0].org, lanes[0].dir, lanes[0].tnear, lanes[0].tfar,
+                                           found[0], context->stats, lanes[0].start, lanes[0].cache);
+  } else {
+    mask = surface->intersectBrickPacket(args->primID, lanes, mask, found, context->stats);
+  }
+  for (; mask; mask &= mask - 1) {
+    const unsigned i = unsigned(__builtin_ctz(mask));
+    const SurfaceHit& hit = found[i];
     float& tfar = RTCRayN_tfar(rays, N, i);
-    const float tnear = RTCRayN_tnear(rays, N, i);
-    SurfaceHit hit;
-    if (!surface->intersectBrick(args->primID, org, dir, tnear, lane.tfar, hit, context->stats, start,
-                                 &lane.gridRay))
-      continue;
     const float t = float(hit.t);
-    if (!(t >= tnear && t <= tfar)) continue;
+    if (!(t >= RTCRayN_tnear(rays, N, i) && t <= tfar)) continue;
     tfar = t;
     RTCHitN_Ng_x(hits, N, i) = hit.normal.x;
     RTCHitN_Ng_y(hits, N, i) = hit.normal.y;
@@ -302,6 +394,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
       RTCHitN_instID(hits, N, i, l) = args->context->instID[l];
     // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
+    IsoRayLane& lane = context->lanes[i];
     lane.tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
     lane.t = hit.t;
     lane.insideAfter = hit.insideAfter;
@@ -313,19 +406,20 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
   const unsigned N = args->N;
   RTCRayN* rays = args->ray;
-  for (unsigned i = 0; i < N; ++i) {
+  IsoSurface::PacketLane lanes[kPacketLanes];
+  uint32_t mask = 0;
+  for (unsigned i = 0; i < std::min(N, unsigned(kPacketLanes)); ++i) {  // World traces 1 or 8 rays at once
     if (!args->valid[i]) continue;
-    IsoRayLane& lane = context->lanes[i];
-    const Vec3d org = lane.origin ? surface->objectOrigin(*lane.origin)
-                                  : Vec3d{RTCRayN_org_x(rays, N, i), RTCRayN_org_y(rays, N, i), RTCRayN_org_z(rays, N, i)};
-    const Vec3d dir = lane.origin ? surface->objectDirection(lane.direction)
-                                  : Vec3d{RTCRayN_dir_x(rays, N, i), RTCRayN_dir_y(rays, N, i), RTCRayN_dir_z(rays, N, i)};
-    const StartClass start = lane.startSurface == surface ? lane.start : StartClass::Unknown;
-    float& tfar = RTCRayN_tfar(rays, N, i);
-    if (surface->occludedBrick(args->primID, org, dir, RTCRayN_tnear(rays, N, i), lane.tfar, context->stats, start,
-                               &lane.gridRay))
-      tfar = -INFINITY;
+    lanes[i] = packetLane(*surface, context->lanes[i], rays, N, i);
+    mask |= 1u << i;
   }
+  if (N == 1) {
+    mask = mask && surface->occludedBrick(args->primID, lanes[0].org, lanes[0].dir, lanes[0].tnear, lanes[0].tfar,
+                                          context->stats, lanes[0].start, lanes[0].cache);
+  } else {
+    mask = surface->occludedBrickPacket(args->primID, lanes, mask, context->stats);
+  }
+  for (; mask; mask &= mask - 1) RTCRayN_tfar(rays, N, unsigned(__builtin_ctz(mask))) = -INFINITY;
 }
 
 }  // namespace

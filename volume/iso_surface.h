@@ -90,6 +90,19 @@ class IsoSurface {
   bool occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                      double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown,
                      GridRayCache* cache = nullptr) const;
+  // Lanes of an Embree packet on one brick (the callbacks with N > 1): for each lane l in `mask`
+  // (at most 8 lanes), what intersectBrick / occludedBrick give that lane alone, bit for bit; bit
+  // l of the result is set when lane l found a crossing. The lanes are walked in lockstep and
+  // their cells solved together (volume/packet_walk.h).
+  struct PacketLane {
+    Vec3d org, dir;
+    double tnear = 0, tfar = 0;
+    StartClass start = StartClass::Unknown;
+    GridRayCache* cache = nullptr;
+  };
+  uint32_t intersectBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
+                                TraversalStats& stats) const;
+  uint32_t occludedBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, TraversalStats& stats) const;
   // With bricks, a ray that starts in an inactive brick has its first cell seen by no brick
   // query (inactive bricks are no Embree primitives). When its start class is given and that
   // brick lies strictly on the other side, the crossing is at the start: true, and `hit` (if
@@ -124,6 +137,15 @@ class IsoSurface {
   bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org,
              const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
              StartClass start, GridRayCache* cache = nullptr) const;
+  template <bool AnyHit>
+  uint32_t packetQuery(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
+                       TraversalStats& stats) const;
+  // The float grid ray of a query and the double one's ends (from `cache` when it holds them).
+  void floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
+                     GridRayCache* cache, GridRay<float>& ray, ExactEnds& exact) const;
+  // A cell hit as a world-space SurfaceHit (the normal from the cell's gradient).
+  template <typename Real, typename Cells>
+  void surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, const Vec3d& dir, SurfaceHit& hit) const;
 
   const Grid& m_grid;
   const BrickGrid& m_bricks;

@@ -217,6 +217,267 @@ int exactEndClass(const Cells& cells, const ExactEnds& e, const Vec3i& cell, dou
   return f > 0 ? 1 : f < 0 ? -1 : 0;
 }
 
+// One ray's walk through the cells [lo, hi) with t in [tnear, tfar], a cell at a time: the
+// 3D-DDA and everything a cell decides except the solve of its cubic. traverseCells drives one
+// walk with a scalar intersector; a packet query (volume/packet_walk.h) drives up to 8 in
+// lockstep and solves their cells together, so both run this same code for everything else and
+// give the same bits. `start` applies where the walk starts at tnear inside the box (not at a
+// face of it).
+template <typename Real, typename Cells>
+class CellWalk {
+ public:
+  // What a cell asks of the caller.
+  enum class Visit {
+    Pass,           // nothing to solve: advance()
+    Solve,          // segment() may hold a crossing: solve it; none found: advance()
+    StartCrossing,  // the field is on the other side of the given start class: startHit()
+  };
+
+  CellWalk() = default;
+  CellWalk(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi, Real tnear, Real tfar,
+           StartClass start, const ExactEnds* exact)
+      : m_cells(&cells), m_ray(&ray), m_exact(exact), m_iso(iso), m_tnear(tnear), m_tfar(tfar), m_lo(lo), m_hi(hi),
+        m_start(start) {}
+
+  // Clips the ray to the box and finds its first cell; false if it has none.
+  bool begin() {
+    const GridRay<Real>& ray = *m_ray;
+    if (!ray.valid() || !(m_tnear <= m_tfar)) return false;
+    const Vec3i lo = m_lo, hi = m_hi;
+    Real t0 = m_tnear, t1 = m_tfar;
+    int entryAxis = -1;
+    for (int a = 0; a < 3; ++a) {
+      if (ray.dir[a] == Real(0)) {
+        if (ray.org[a] < Real(lo[a]) || ray.org[a] > Real(hi[a])) return false;
+        continue;
+      }
+      const bool pos = ray.dir[a] > Real(0);
+      const Real tl = ray.planeT(a, pos ? lo[a] : hi[a]);
+      const Real th = ray.planeT(a, pos ? hi[a] : lo[a]);
+      if (tl > t0) { t0 = tl; entryAxis = a; }
+      t1 = std::min(t1, th);
+    }
+    if (!(t0 <= t1)) {
+      // A ray continuing from a hit may start on the box's boundary heading out (IsoSurface moves
+      // starts that left the box onto it), where rounding in planeT can put t1 just below t0.
+      // Its one zero-length segment still compares the given class with the field there.
+      const Real eps = Real(4) * std::numeric_limits<Real>::epsilon();
+      if (m_start == StartClass::Unknown || entryAxis >= 0 || !(t0 - t1 <= eps * (std::fabs(t0) + Real(1))))
+        return false;
+      for (int a = 0; a < 3; ++a) {
+        const Real p = ray.org[a] + t0 * ray.dir[a];
+        const Real tol = eps * (std::fabs(p) + Real(1));
+        if (!(p >= Real(lo[a]) - tol && p <= Real(hi[a]) + tol)) return false;
+      }
+      t1 = t0;
+    }
+    const Real inf = std::numeric_limits<Real>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      const bool pos = ray.dir[a] > Real(0);
+      if (a == entryAxis) {
+        m_cell[a] = pos ? lo[a] : hi[a] - 1;
+      } else {
+        const Real p = ray.org[a] + t0 * ray.dir[a];
+        // Clamped first, then truncated: the same cell as floor-then-clamp (lo >= 0), cheaper, and
+        // no out-of-range conversion for a far origin whose p carries a large rounding error.
+        m_cell[a] = int(std::clamp(p, Real(lo[a]), Real(hi[a] - 1)));
+      }
+      m_step[a] = ray.dir[a] == Real(0) ? 0 : (pos ? 1 : -1);
+      m_tNext[a] = m_step[a] == 0 ? inf : ray.planeT(a, m_cell[a] + (pos ? 1 : 0));
+    }
+    m_t0 = t0;
+    m_t1 = t1;
+    m_ta = t0;
+    m_entryAxis = m_enterAxis = entryAxis;
+    // Exact zeros (a face or edge whose value is exactly the iso value, common with integer
+    // data and integer iso values) take the class the ray had just before them: a crossing is
+    // a change between strictly inside and strictly outside. Without this, a ray that touches
+    // such a face from inside counts one crossing (inside -> zero) where there are zero or two,
+    // and neither a restart nor a spawned ray can recover the pairing (DESIGN.md, "Known
+    // traps"). `carried` stands in for an exact zero at the start of the next segment; a ray
+    // starts outside, by the convention that zero is not inside.
+    m_carried = -kTiny;
+    // Entering through a face exactly on the surface, the class behind that face (without it a
+    // crossing through an exact zero on a brick seam was seen by neither brick). Only the first
+    // cell needs it, and only if it is not of one strict sign: see classBehindEntry.
+    m_entryPending = entryAxis >= 0;
+    // A given start class stands for the first segment's f0, whatever the field says there.
+    m_startGiven = entryAxis < 0 && m_start != StartClass::Unknown;
+    if (m_startGiven) m_carried = m_start == StartClass::Inside ? kTiny : -kTiny;
+    m_firstSegment = true;
+    return true;
+  }
+
+  // The current cell: steps over it, or prepares its segment for a solve.
+  Visit visit(TraversalStats& stats) {
+    const GridRay<Real>& ray = *m_ray;
+    const Cells& cells = *m_cells;
+    ++stats.cellsVisited;
+    int m = 0;
+    if (m_tNext[1] < m_tNext[m]) m = 1;
+    if (m_tNext[2] < m_tNext[m]) m = 2;
+    m_m = m;
+    // Either the cell is left through a face (pinned) or the ray ends inside it at tfar.
+    m_throughFace = m_tNext[m] <= m_t1;
+    m_tb = std::max(m_ta, m_throughFace ? m_tNext[m] : m_t1);
+    const int leaveAxis = m_throughFace ? m : -1;
+
+    CellSegment<Real>& seg = m_seg;
+    int positive = 0, negative = 0;
+    if (const int uniform = cells.uniformClass(m_cell)) {
+      (uniform > 0 ? positive : negative) = 8;
+    } else {
+      cells.load(m_cell, m_iso, seg.g);
+      for (int i = 0; i < 8; ++i) {
+        positive += seg.g[i] > Real(0);
+        negative += seg.g[i] < Real(0);
+      }
+    }
+    // Cells that cannot change the class are stepped over: one strict sign, or zeros with
+    // values only on the side the ray is already on.
+    if (m_entryPending) {
+      m_entryPending = false;
+      if (positive != 8 && negative != 8)
+        m_carried = classBehindEntry(cells, m_iso, ray, m_cell, m_entryAxis, m_step[m_entryAxis],
+                                     localAt(m_t0, m_entryAxis, faceValue(m_entryAxis, true)), seg.g, m_carried);
+    }
+    const bool carriedIn = m_carried > Real(0);
+    if (m_startGiven && ((positive == 8 && !carriedIn) || (negative == 8 && carriedIn))) {
+      // The field is strictly on the other side all over the first cell: the crossing lies
+      // between the hit the ray continues from and its origin (the spawn offset stepped
+      // over it). It is reported at the start, where its bound is the rounding of t alone.
+      return Visit::StartCrossing;
+    }
+    if (positive == 8) {
+      m_carried = kTiny;
+      return Visit::Pass;
+    }
+    if (negative == 8) {
+      m_carried = -kTiny;
+      return Visit::Pass;
+    }
+    if ((negative == 0 && (positive == 0 || carriedIn)) || (positive == 0 && !carriedIn))
+      return Visit::Pass;  // the carried class stands
+    ++stats.cellsSolved;
+    const int enterAxis = m_enterAxis;
+    seg.a = localAt(m_ta, enterAxis, enterAxis >= 0 ? faceValue(enterAxis, true) : Real(0));
+    seg.b = localAt(m_tb, leaveAxis, leaveAxis >= 0 ? faceValue(leaveAxis, false) : Real(0));
+    seg.f0 = trilinear(seg.g, seg.a);
+    seg.f1 = trilinear(seg.g, seg.b);
+    if (seg.f0 == Real(0) || m_startGiven) seg.f0 = m_carried;
+    // At an end of the ray's extent in the grid, the class in double (exactEndClass) where
+    // float says otherwise: the first segment of a ray that starts here without a given
+    // class or enters through the grid's boundary; the last one that ends at tfar or leaves
+    // through the grid's boundary.
+    if (const ExactEnds* exact = m_exact) {
+      if (m_firstSegment && !m_startGiven && (enterAxis < 0 || atGridFace(enterAxis, true))) {
+        const int c = enterAxis < 0 ? exactEndClass(cells, *exact, m_cell, exact->tnear, -1, 0)
+                                    : exactEndClass(cells, *exact, m_cell, 0, enterAxis, gridFace(enterAxis, true));
+        if (c != 0 && (c > 0) != (seg.f0 > Real(0))) seg.f0 = c > 0 ? kTiny : -kTiny;
+      }
+      if ((!m_throughFace && m_t1 == m_tfar) || (m_throughFace && atGridFace(leaveAxis, false))) {
+        const int c = m_throughFace ? exactEndClass(cells, *exact, m_cell, 0, leaveAxis, gridFace(leaveAxis, false))
+                                    : exactEndClass(cells, *exact, m_cell, exact->tfar, -1, 0);
+        if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? kTiny : -kTiny;
+      }
+    }
+    if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.f0) > Real(0) ? kTiny : -kTiny;
+    m_carried = seg.f1 > Real(0) ? kTiny : -kTiny;
+    return Visit::Solve;
+  }
+
+  // The segment of the cell visit() returned Solve for.
+  const CellSegment<Real>& segment() const { return m_seg; }
+
+  // The crossing at the start (after Visit::StartCrossing).
+  void startHit(CellHit<Real>& hit, TraversalStats& stats) const {
+    ++stats.rootsRefined;
+    hit.t = m_ta;
+    hit.tError = roundingOfT(m_ta, Real(0));
+    hit.cell = m_cell;
+    hit.local = localAt(m_ta, -1, Real(0));
+    hit.tangent = false;
+    hit.insideAfter = !(m_carried > Real(0));
+  }
+
+  // The crossing at `root` of the segment (after Visit::Solve).
+  void hitAt(const Root<Real>& root, CellHit<Real>& hit, TraversalStats& stats) const {
+    ++stats.rootsRefined;
+    const Real len = m_tb - m_ta;
+    hit.t = m_ta + root.s * len;
+    hit.tError = root.sError * len + roundingOfT(hit.t, len);
+    hit.cell = m_cell;
+    hit.local = m_seg.a + (m_seg.b - m_seg.a) * root.s;
+    hit.tangent = root.tangent;
+    // The first change of class on the segment leaves the class of f0 (a tangent root
+    // changes nothing).
+    hit.insideAfter = root.tangent ? isInside(m_seg.f0) : !isInside(m_seg.f0);
+  }
+
+  // On to the next cell; false when the walk is over (no crossing).
+  bool advance() {
+    m_startGiven = false;
+    m_firstSegment = false;
+    if (!m_throughFace) return false;
+    const int m = m_m;
+    m_cell[m] += m_step[m];
+    if (m_cell[m] < m_lo[m] || m_cell[m] >= m_hi[m]) return false;
+    m_ta = m_tb;
+    m_enterAxis = m;
+    m_tNext[m] = m_ray->planeT(m, m_cell[m] + (m_step[m] > 0 ? 1 : 0));
+    return true;
+  }
+
+ private:
+  static constexpr Real kTiny = std::numeric_limits<Real>::denorm_min();
+
+  // Local coordinate on `axis` at t, with the crossed face pinned exactly.
+  Vec3<Real> localAt(Real t, int faceAxis, Real faceValue) const {
+    Vec3<Real> p;
+    for (int a = 0; a < 3; ++a)
+      p[a] = a == faceAxis ? faceValue
+                           : std::clamp(m_ray->org[a] + t * m_ray->dir[a] - Real(m_cell[a]), Real(0), Real(1));
+    return p;
+  }
+  Real faceValue(int axis, bool entering) const {
+    const bool pos = m_ray->dir[axis] > Real(0);
+    return Real(pos == entering ? 0 : 1);
+  }
+  // The grid coordinate of the face the ray enters (leaves) the current cell through on
+  // `axis`, and whether that face is on the grid's boundary.
+  int gridFace(int axis, bool entering) const { return m_cell[axis] + int(faceValue(axis, entering)); }
+  bool atGridFace(int axis, bool entering) const {
+    if (axis < 0) return false;
+    const int f = gridFace(axis, entering);
+    return f == 0 || f == m_cells->dims[axis] - 1;
+  }
+  // Rounding in a hit's t: of the ray's origin in grid coordinates (it moves the ray by
+  // eps |org|, i.e. t by that over the speed), and of t and the segment length themselves.
+  Real roundingOfT(Real t, Real len) const {
+    const GridRay<Real>& ray = *m_ray;
+    const Real originScale =
+        std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) / length(ray.dir);
+    return Real(2) * std::numeric_limits<Real>::epsilon() * (originScale + std::fabs(t) + len);
+  }
+
+  const Cells* m_cells = nullptr;
+  const GridRay<Real>* m_ray = nullptr;
+  const ExactEnds* m_exact = nullptr;
+  Real m_iso = 0, m_tnear = 0, m_tfar = 0;
+  Vec3i m_lo, m_hi;
+  StartClass m_start = StartClass::Unknown;
+  // The DDA: the current cell, its steps and the t of the next face on each axis.
+  Vec3i m_cell, m_step;
+  Vec3<Real> m_tNext;
+  Real m_t0 = 0, m_t1 = 0;  // the clipped extent
+  Real m_ta = 0, m_tb = 0;  // the current cell's segment
+  int m_entryAxis = -1, m_enterAxis = -1, m_m = 0;
+  bool m_throughFace = false;
+  Real m_carried = 0;
+  bool m_entryPending = false, m_startGiven = false, m_firstSegment = true;
+  CellSegment<Real> m_seg;
+};
+
 // First crossing of the ray with the iso-surface inside the cells [lo, hi) and t in
 // [tnear, tfar]. AnyHit (shadow rays) returns at the first cell with a proven crossing.
 // `start` applies where the query starts at tnear inside the box (not at a face of it).
@@ -225,206 +486,29 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
                    TraversalStats& stats, StartClass start = StartClass::Unknown,
                    const ExactEnds* exact = nullptr) {
-  if (!ray.valid() || !(tnear <= tfar)) return false;
-  Real t0 = tnear, t1 = tfar;
-  int entryAxis = -1;
-  for (int a = 0; a < 3; ++a) {
-    if (ray.dir[a] == Real(0)) {
-      if (ray.org[a] < Real(lo[a]) || ray.org[a] > Real(hi[a])) return false;
-      continue;
-    }
-    const bool pos = ray.dir[a] > Real(0);
-    const Real tl = ray.planeT(a, pos ? lo[a] : hi[a]);
-    const Real th = ray.planeT(a, pos ? hi[a] : lo[a]);
-    if (tl > t0) { t0 = tl; entryAxis = a; }
-    t1 = std::min(t1, th);
-  }
-  if (!(t0 <= t1)) {
-    // A ray continuing from a hit may start on the box's boundary heading out (IsoSurface moves
-    // starts that left the box onto it), where rounding in planeT can put t1 just below t0.
-    // Its one zero-length segment still compares the given class with the field there.
-    const Real eps = Real(4) * std::numeric_limits<Real>::epsilon();
-    if (start == StartClass::Unknown || entryAxis >= 0 || !(t0 - t1 <= eps * (std::fabs(t0) + Real(1))))
-      return false;
-    for (int a = 0; a < 3; ++a) {
-      const Real p = ray.org[a] + t0 * ray.dir[a];
-      const Real tol = eps * (std::fabs(p) + Real(1));
-      if (!(p >= Real(lo[a]) - tol && p <= Real(hi[a]) + tol)) return false;
-    }
-    t1 = t0;
-  }
-
-  Vec3i cell, step;
-  Vec3<Real> tNext;
-  const Real inf = std::numeric_limits<Real>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    const bool pos = ray.dir[a] > Real(0);
-    if (a == entryAxis) {
-      cell[a] = pos ? lo[a] : hi[a] - 1;
-    } else {
-      const Real p = ray.org[a] + t0 * ray.dir[a];
-      // Clamped first, then truncated: the same cell as floor-then-clamp (lo >= 0), cheaper, and
-      // no out-of-range conversion for a far origin whose p carries a large rounding error.
-      cell[a] = int(std::clamp(p, Real(lo[a]), Real(hi[a] - 1)));
-    }
-    step[a] = ray.dir[a] == Real(0) ? 0 : (pos ? 1 : -1);
-    tNext[a] = step[a] == 0 ? inf : ray.planeT(a, cell[a] + (pos ? 1 : 0));
-  }
-
-  // Local coordinate on `axis` at t, with the crossed face pinned exactly.
-  auto localAt = [&](Real t, int faceAxis, Real faceValue) {
-    Vec3<Real> p;
-    for (int a = 0; a < 3; ++a)
-      p[a] = a == faceAxis ? faceValue
-                           : std::clamp(ray.org[a] + t * ray.dir[a] - Real(cell[a]), Real(0), Real(1));
-    return p;
-  };
-  auto faceValue = [&](int axis, bool entering) {
-    const bool pos = ray.dir[axis] > Real(0);
-    return Real(pos == entering ? 0 : 1);
-  };
-  // The grid coordinate of the face the ray enters (leaves) the current cell through on
-  // `axis`, and whether that face is on the grid's boundary.
-  auto gridFace = [&](int axis, bool entering) { return cell[axis] + int(faceValue(axis, entering)); };
-  auto atGridFace = [&](int axis, bool entering) {
-    if (axis < 0) return false;
-    const int f = gridFace(axis, entering);
-    return f == 0 || f == cells.dims[axis] - 1;
-  };
-
-  // Rounding in a hit's t: of the ray's origin in grid coordinates (it moves the ray by
-  // eps |org|, i.e. t by that over the speed), and of t and the segment length themselves.
-  auto roundingOfT = [&](Real t, Real len) {
-    const Real originScale =
-        std::max({std::fabs(ray.org.x), std::fabs(ray.org.y), std::fabs(ray.org.z)}) / length(ray.dir);
-    return Real(2) * std::numeric_limits<Real>::epsilon() * (originScale + std::fabs(t) + len);
-  };
-
-  Real ta = t0;
-  int enterAxis = entryAxis;
-  // Exact zeros (a face or edge whose value is exactly the iso value, common with integer
-  // data and integer iso values) take the class the ray had just before them: a crossing is
-  // a change between strictly inside and strictly outside. Without this, a ray that touches
-  // such a face from inside counts one crossing (inside -> zero) where there are zero or two,
-  // and neither a restart nor a spawned ray can recover the pairing (DESIGN.md, "Known
-  // traps"). `carried` stands in for an exact zero at the start of the next segment; a ray
-  // starts outside, by the convention that zero is not inside.
-  const Real tiny = std::numeric_limits<Real>::denorm_min();
-  Real carried = -tiny;
-  // Entering through a face exactly on the surface, the class behind that face (without it a
-  // crossing through an exact zero on a brick seam was seen by neither brick). Only the first
-  // cell needs it, and only if it is not of one strict sign: see classBehindEntry.
-  bool entryPending = entryAxis >= 0;
-  // A given start class stands for the first segment's f0, whatever the field says there.
-  bool startGiven = entryAxis < 0 && start != StartClass::Unknown;
-  if (startGiven) carried = start == StartClass::Inside ? tiny : -tiny;
-  bool firstSegment = true;
-  for (;;) {
-    ++stats.cellsVisited;
-    int m = 0;
-    if (tNext[1] < tNext[m]) m = 1;
-    if (tNext[2] < tNext[m]) m = 2;
-    // Either the cell is left through a face (pinned) or the ray ends inside it at tfar.
-    const bool throughFace = tNext[m] <= t1;
-    const Real tb = std::max(ta, throughFace ? tNext[m] : t1);
-    const int leaveAxis = throughFace ? m : -1;
-
-    CellSegment<Real> seg;
-    int positive = 0, negative = 0;
-    if (const int uniform = cells.uniformClass(cell)) {
-      (uniform > 0 ? positive : negative) = 8;
-    } else {
-      cells.load(cell, iso, seg.g);
-      for (int i = 0; i < 8; ++i) {
-        positive += seg.g[i] > Real(0);
-        negative += seg.g[i] < Real(0);
-      }
-    }
-    // Cells that cannot change the class are stepped over: one strict sign, or zeros with
-    // values only on the side the ray is already on.
-    if (entryPending) {
-      entryPending = false;
-      if (positive != 8 && negative != 8)
-        carried = classBehindEntry(cells, iso, ray, cell, entryAxis, step[entryAxis],
-                                   localAt(t0, entryAxis, faceValue(entryAxis, true)), seg.g, carried);
-    }
-    const bool carriedIn = carried > Real(0);
-    if (startGiven && ((positive == 8 && !carriedIn) || (negative == 8 && carriedIn))) {
-      // The field is strictly on the other side all over the first cell: the crossing lies
-      // between the hit the ray continues from and its origin (the spawn offset stepped
-      // over it). It is reported at the start, where its bound is the rounding of t alone.
-      if constexpr (AnyHit) {
+  CellWalk<Real, Cells> walk(cells, iso, ray, lo, hi, tnear, tfar, start, exact);
+  if (!walk.begin()) return false;
+  do {
+    switch (walk.visit(stats)) {
+      case CellWalk<Real, Cells>::Visit::StartCrossing:
+        if constexpr (!AnyHit) walk.startHit(hit, stats);
         return true;
-      } else {
-        ++stats.rootsRefined;
-        hit.t = ta;
-        hit.tError = roundingOfT(ta, Real(0));
-        hit.cell = cell;
-        hit.local = localAt(ta, -1, Real(0));
-        hit.tangent = false;
-        hit.insideAfter = !carriedIn;
-        return true;
-      }
+      case CellWalk<Real, Cells>::Visit::Solve:
+        if constexpr (AnyHit) {
+          if (solver.any(walk.segment())) return true;
+        } else {
+          Root<Real> root;
+          if (solver.first(walk.segment(), root)) {
+            walk.hitAt(root, hit, stats);
+            return true;
+          }
+        }
+        break;
+      case CellWalk<Real, Cells>::Visit::Pass:
+        break;
     }
-    if (positive == 8) {
-      carried = tiny;
-    } else if (negative == 8) {
-      carried = -tiny;
-    } else if ((negative == 0 && (positive == 0 || carriedIn)) || (positive == 0 && !carriedIn)) {
-      // the carried class stands
-    } else {
-      ++stats.cellsSolved;
-      seg.a = localAt(ta, enterAxis, enterAxis >= 0 ? faceValue(enterAxis, true) : Real(0));
-      seg.b = localAt(tb, leaveAxis, leaveAxis >= 0 ? faceValue(leaveAxis, false) : Real(0));
-      seg.f0 = trilinear(seg.g, seg.a);
-      seg.f1 = trilinear(seg.g, seg.b);
-      if (seg.f0 == Real(0) || startGiven) seg.f0 = carried;
-      // At an end of the ray's extent in the grid, the class in double (exactEndClass) where
-      // float says otherwise: the first segment of a ray that starts here without a given
-      // class or enters through the grid's boundary; the last one that ends at tfar or leaves
-      // through the grid's boundary.
-      if (exact) {
-        if (firstSegment && !startGiven && (enterAxis < 0 || atGridFace(enterAxis, true))) {
-          const int c = enterAxis < 0 ? exactEndClass(cells, *exact, cell, exact->tnear, -1, 0)
-                                      : exactEndClass(cells, *exact, cell, 0, enterAxis, gridFace(enterAxis, true));
-          if (c != 0 && (c > 0) != (seg.f0 > Real(0))) seg.f0 = c > 0 ? tiny : -tiny;
-        }
-        if ((!throughFace && t1 == tfar) || (throughFace && atGridFace(leaveAxis, false))) {
-          const int c = throughFace ? exactEndClass(cells, *exact, cell, 0, leaveAxis, gridFace(leaveAxis, false))
-                                    : exactEndClass(cells, *exact, cell, exact->tfar, -1, 0);
-          if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? tiny : -tiny;
-        }
-      }
-      if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.f0) > Real(0) ? tiny : -tiny;
-      carried = seg.f1 > Real(0) ? tiny : -tiny;
-      if constexpr (AnyHit) {
-        if (solver.any(seg)) return true;
-      } else {
-        Root<Real> root;
-        if (solver.first(seg, root)) {
-          ++stats.rootsRefined;
-          const Real len = tb - ta;
-          hit.t = ta + root.s * len;
-          hit.tError = root.sError * len + roundingOfT(hit.t, len);
-          hit.cell = cell;
-          hit.local = seg.a + (seg.b - seg.a) * root.s;
-          hit.tangent = root.tangent;
-          // The first change of class on the segment leaves the class of f0 (a tangent
-          // root changes nothing).
-          hit.insideAfter = root.tangent ? isInside(seg.f0) : !isInside(seg.f0);
-          return true;
-        }
-      }
-    }
-    startGiven = false;
-    firstSegment = false;
-    if (!throughFace) return false;
-    cell[m] += step[m];
-    if (cell[m] < lo[m] || cell[m] >= hi[m]) return false;
-    ta = tb;
-    enterAxis = m;
-    tNext[m] = ray.planeT(m, cell[m] + (step[m] > 0 ? 1 : 0));
-  }
+  } while (walk.advance());
+  return false;
 }
 
 }  // namespace iso

@@ -1,0 +1,97 @@
+#pragma once
+// Up to 8 rays' walks through one brick in lockstep (an Embree packet's lanes on one primitive).
+// Each lane is a CellWalk (volume/traversal.h): the DDA and every decision a cell makes are the
+// scalar walk's own code. What the lanes share is the solve: each lockstep step gathers the
+// cells that need one and solves their cubics together, 8 lanes per instruction (AVX2 when the
+// CPU has it, chosen at run time; SSE otherwise). The vector solve of the isolation intersector
+// gives the scalar one's bits (same operations in the same order on every lane, no FMA
+// contraction: packet_walk.cpp is built with -ffp-contract=off); tests/packet_test.cpp checks
+// it lane by lane on real volumes. The other intersectors solve lane by lane.
+#include <cstdint>
+
+#include "volume/traversal.h"
+
+namespace iso {
+
+constexpr int kPacketLanes = 8;
+
+// The isolation intersector (IsolationIntersector in volume/intersectors.h) on up to 8 segments.
+// Lanes not in `mask` are ignored (their pointers may be null).
+struct IsolationPacket {
+  int iterations = 8;
+  // Bit l of the result: segs[l] has a crossing; roots[l] is then IsolationIntersector::first's.
+  uint32_t first(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask, Root<float> roots[kPacketLanes]) const;
+  // Bit l: IsolationIntersector::any(*segs[l]).
+  uint32_t any(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask) const;
+};
+
+// Any scalar intersector, lane by lane, with IsolationPacket's interface.
+template <typename Intersector>
+struct LaneByLane {
+  Intersector solver;
+  uint32_t first(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask, Root<float> roots[kPacketLanes]) const {
+    uint32_t found = 0;
+    for (int l = 0; l < kPacketLanes; ++l)
+      if ((mask >> l & 1) && solver.first(*segs[l], roots[l])) found |= 1u << l;
+    return found;
+  }
+  uint32_t any(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask) const {
+    uint32_t found = 0;
+    for (int l = 0; l < kPacketLanes; ++l)
+      if ((mask >> l & 1) && solver.any(*segs[l])) found |= 1u << l;
+    return found;
+  }
+};
+
+// Walks the lanes in `live` (whose begin() returned true) to their first crossing, in lockstep:
+// bit l of the result is set when lane l found one (hits[l], for closest-hit queries). Each lane
+// gets exactly what traverseCells gives it alone.
+template <bool AnyHit, typename Cells, typename PacketSolver>
+uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const PacketSolver& solver,
+                        CellHit<float>* hits, TraversalStats& stats) {
+  using Visit = typename CellWalk<float, Cells>::Visit;
+  uint32_t found = 0;
+  const CellSegment<float>* segs[kPacketLanes] = {};
+  while (live) {
+    uint32_t solve = 0;
+    for (uint32_t rest = live; rest; rest &= rest - 1) {
+      const int l = __builtin_ctz(rest);
+      switch (walks[l].visit(stats)) {
+        case Visit::StartCrossing:
+          if constexpr (!AnyHit) walks[l].startHit(hits[l], stats);
+          found |= 1u << l;
+          live &= ~(1u << l);
+          break;
+        case Visit::Solve:
+          solve |= 1u << l;
+          segs[l] = &walks[l].segment();
+          break;
+        case Visit::Pass:
+          break;
+      }
+    }
+    if (solve) {
+      if constexpr (AnyHit) {
+        const uint32_t yes = solver.any(segs, solve);
+        found |= yes;
+        live &= ~yes;
+      } else {
+        Root<float> roots[kPacketLanes];
+        const uint32_t yes = solver.first(segs, solve, roots);
+        for (uint32_t rest = yes; rest; rest &= rest - 1) {
+          const int l = __builtin_ctz(rest);
+          walks[l].hitAt(roots[l], hits[l], stats);
+        }
+        found |= yes;
+        live &= ~yes;
+      }
+    }
+    for (uint32_t rest = live; rest; rest &= rest - 1) {
+      const int l = __builtin_ctz(rest);
+      if (!walks[l].advance()) live &= ~(1u << l);
+    }
+  }
+  return found;
+}
+
+}  // namespace iso
