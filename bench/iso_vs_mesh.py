@@ -119,7 +119,7 @@ def render(scene, extra, resolution, image, stats):
 # Callgrind counts only inside a tile's pass (TileRenderer::renderPass: the camera rays, the
 # integrator's stages and every ray they trace, in either ray flow), so that loading, building and
 # writing the image are left out.
-COUNTED_SYMBOL = "iso::TileRenderer::renderPass*"
+COUNTED_SYMBOL = "iso::TileRenderer::renderPass(*"
 
 
 def count_instructions(scene, mode, resolution, image, work, flow=None):

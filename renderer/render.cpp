@@ -78,7 +78,7 @@ void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
 }
 
 // The paths of one tile's pass, reused from pass to pass by each thread: at most
-// kTile^2 pixels x 16 samples (the largest pass) = 4,096 paths, ~1.3 MiB, whatever the image size.
+// kTile^2 pixels x 16 samples (the largest pass) = 4,096 paths of 304 bytes, 1.2 MiB, whatever the image size.
 struct Wavefront {
   std::vector<PathState> paths;
   std::vector<int> queue;
@@ -117,9 +117,10 @@ uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums
 }
 
 // The wavefront flow: every open pixel's samples [s0, s1) of the tile are paths in flight. Camera
-// rays go to Embree in 4x2 pixel packets of one sample index; then, until no path asks for a
-// ray, the shadow rays of all paths are traced, then their next rays, each queue in packets of 8
-// in path order. The integrator's stages do the rest, path by path, in the order Li would.
+// rays go to Embree in 4x2 pixel packets of one sample index (rtcIntersect8: the iso-surfaces'
+// bricks are walked by the packet's lanes together); then, until no path asks for a ray, the
+// shadow rays of all paths are traced, then their next rays. The integrator's stages do the
+// rest, path by path, in the order Li would.
 uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
                                            RayCounters& counters) const {
   Wavefront& wf = t_wavefront;
@@ -141,10 +142,6 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
   Hit hits[World::kPacket];
   bool found[World::kPacket];
   int lanes[World::kPacket];
-  auto traceLanes = [&](int n) {
-    world.intersectPacket(rays, n, hits, found, counters.traversal);
-    for (int i = 0; i < n; ++i) m_integrator.afterTrace(wf.paths[size_t(lanes[i])], found[i], hits[i], counters);
-  };
 
   // Camera rays, 4x2 pixels of one sample index per packet.
   for (int s = s0; s < s1; ++s)
@@ -166,44 +163,32 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
             rays[n] = p.ray;
             lanes[n++] = index;
           }
-        if (n > 0) traceLanes(n);
+        if (n == 0) continue;
+        world.intersectPacket(rays, n, hits, found, counters.traversal);
+        for (int i = 0; i < n; ++i) m_integrator.afterTrace(wf.paths[size_t(lanes[i])], found[i], hits[i], counters);
       }
 
-  // Then shadow rays and continuation rays, until every path is done.
+  // Then shadow rays and continuation rays, stage by stage, until every path is done. These
+  // are incoherent (bounces, lights sampled anywhere), and Embree's packets lose on them: traced
+  // one at a time they render faster (docs/BENCHMARKS.md, "Wavefront"), so they are.
   for (;;) {
-    wf.queue.clear();
-    for (size_t i = 0; i < count; ++i)
-      if (wf.paths[i].shadowing) wf.queue.push_back(int(i));
-    for (size_t k = 0; k < wf.queue.size(); k += World::kPacket) {
-      const int n = int(std::min<size_t>(World::kPacket, wf.queue.size() - k));
-      bool blocked[World::kPacket];
-      for (int i = 0; i < n; ++i) {
-        PathState& p = wf.paths[size_t(wf.queue[k + size_t(i)])];
-        p.shadowing = false;
-        rays[i] = p.shadow;
-      }
-      world.occludedPacket(rays, n, blocked, counters.traversal);
-      for (int i = 0; i < n; ++i) m_integrator.afterShadow(wf.paths[size_t(wf.queue[k + size_t(i)])], blocked[i]);
+    bool more = false;
+    for (size_t i = 0; i < count; ++i) {
+      PathState& p = wf.paths[i];
+      if (!p.shadowing) continue;
+      p.shadowing = false;
+      m_integrator.afterShadow(p, world.occluded(p.shadow, counters.traversal));
     }
-    wf.queue.clear();
-    for (size_t i = 0; i < count; ++i)
-      if (wf.paths[i].tracing) wf.queue.push_back(int(i));
-    if (wf.queue.empty()) {
-      bool shadows = false;
-      for (size_t i = 0; i < count && !shadows; ++i) shadows = wf.paths[i].shadowing;
-      if (!shadows) break;
-      continue;
+    for (size_t i = 0; i < count; ++i) {
+      PathState& p = wf.paths[i];
+      if (!p.tracing) continue;
+      p.tracing = false;
+      Hit hit;
+      const bool found = world.intersect(p.ray, hit, counters.traversal);
+      m_integrator.afterTrace(p, found, hit, counters);
+      more = more || p.tracing || p.shadowing;
     }
-    for (size_t k = 0; k < wf.queue.size(); k += World::kPacket) {
-      const int n = int(std::min<size_t>(World::kPacket, wf.queue.size() - k));
-      for (int i = 0; i < n; ++i) {
-        lanes[i] = wf.queue[k + size_t(i)];
-        PathState& p = wf.paths[size_t(lanes[i])];
-        p.tracing = false;
-        rays[i] = p.ray;
-      }
-      traceLanes(n);
-    }
+    if (!more) break;
   }
 
   // Sums in pixel order, each pixel's samples in sample order: the scalar flow's order.

@@ -8,101 +8,117 @@
 #include "volume/packet_walk.h"
 
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 namespace iso {
 namespace {
 
+// GCC's vector extensions: 8 floats, 8 ints (a comparison gives 0 or -1 per lane), with the
+// usual operators; `m ? a : b` selects by lane. The baseline clone splits them into SSE halves.
+typedef float F8 __attribute__((vector_size(32)));
+typedef int32_t I8 __attribute__((vector_size(32)));
+
 constexpr int W = kPacketLanes;
 constexpr float kEvalFactor = 32 * std::numeric_limits<float>::epsilon();  // evaluationError's
 
-// The lanes' segments as structures of arrays, and what the scalar isolate() makes of them:
-// the knots k[0..n+1] (0, the cubic's extrema inside (0, 1), 1) and the values there.
+inline F8 splat(float v) { return F8{v, v, v, v, v, v, v, v}; }
+inline I8 splat(int32_t v) { return I8{v, v, v, v, v, v, v, v}; }
+inline F8 fabs8(F8 x) { return (F8)((I8)x & splat(0x7fffffff)); }
+inline F8 copysign8(F8 magnitude, F8 sign) {
+  return (F8)(((I8)magnitude & splat(0x7fffffff)) | ((I8)sign & splat(int32_t(0x80000000u))));
+}
+// std::max and std::min as the scalar code calls them: (a < b) ? b : a and (b < a) ? b : a.
+inline F8 max8(F8 a, F8 b) { return a < b ? b : a; }
+inline F8 min8(F8 a, F8 b) { return b < a ? b : a; }
+inline I8 inside8(F8 f) { return f > splat(0.f); }
+inline F8 cubic8(const F8 c[4], F8 s) { return ((c[3] * s + c[2]) * s + c[1]) * s + c[0]; }
+inline uint32_t bits8(I8 m) {
+  uint32_t r = 0;
+  for (int l = 0; l < W; ++l) r |= uint32_t(m[l] != 0) << l;
+  return r;
+}
+inline I8 maskOf(uint32_t bits) {
+  I8 m;
+  for (int l = 0; l < W; ++l) m[l] = (bits >> l & 1) ? -1 : 0;
+  return m;
+}
+
+// What the scalar isolate() makes of each lane's segment: the cubic, the knots k[0..n+1] (0,
+// the extrema inside (0, 1), 1; padded with 1) and the values there (padded with f1), and the
+// sum of |g| in the scalar order. Lanes outside `mask` copy a lane inside it.
 struct Lanes {
-  float g[8][W];
-  float a[3][W], b[3][W];
-  float f0[W], f1[W];
-  float c[4][W];      // the cubic
-  int n[W];           // extrema inside (0, 1)
-  float k[4][W];      // knots, padded with 1 past n + 1
-  float fk[4][W];     // values at the knots, padded with f1
-  float scale[W];     // sum of |g|, in the scalar order
+  F8 c[4];
+  I8 n1, n2;  // n >= 1, n == 2 (n: extrema inside (0, 1))
+  F8 k[4], fk[4];
+  F8 f0, f1;
+  F8 scale;
 };
 
-inline bool inside(float f) { return f > 0.f; }
-
-// Gathers the segments (lanes outside `mask` copy a lane inside it: all arithmetic stays finite
-// where the data are) and runs cellCubic and isolate on every lane.
-void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lanes& L) {
-  const int any = __builtin_ctz(mask);
+inline void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lanes& L) {
+  const int first = __builtin_ctz(mask);
+  F8 g[8], a[3], b[3];
   for (int l = 0; l < W; ++l) {
-    const CellSegment<float>& s = *segs[(mask >> l & 1) ? l : any];
-    for (int i = 0; i < 8; ++i) L.g[i][l] = s.g[i];
+    const CellSegment<float>& s = *segs[(mask >> l & 1) ? l : first];
+    for (int i = 0; i < 8; ++i) g[i][l] = s.g[i];
     for (int i = 0; i < 3; ++i) {
-      L.a[i][l] = s.a[i];
-      L.b[i][l] = s.b[i];
+      a[i][l] = s.a[i];
+      b[i][l] = s.b[i];
     }
     L.f0[l] = s.f0;
     L.f1[l] = s.f1;
   }
   // cellCubic: along x (linear in s), then y (quadratic), then z (cubic).
-  for (int l = 0; l < W; ++l) {
-    const float ax = L.a[0][l], ay = L.a[1][l], az = L.a[2][l];
-    const float dx = L.b[0][l] - ax, dy = L.b[1][l] - ay, dz = L.b[2][l] - az;
-    float A[4], B[4];
-    for (int e = 0; e < 4; ++e) {
-      const float diff = L.g[2 * e + 1][l] - L.g[2 * e][l];
-      A[e] = L.g[2 * e][l] + ax * diff;
-      B[e] = dx * diff;
-    }
-    float h[2][3];
-    for (int q = 0; q < 2; ++q) {
-      const float P = A[2 * q + 1] - A[2 * q], Q = B[2 * q + 1] - B[2 * q];
-      h[q][0] = A[2 * q] + ay * P;
-      h[q][1] = B[2 * q] + ay * Q + dy * P;
-      h[q][2] = dy * Q;
-    }
-    const float D0 = h[1][0] - h[0][0], D1 = h[1][1] - h[0][1], D2 = h[1][2] - h[0][2];
-    L.c[0][l] = h[0][0] + az * D0;
-    L.c[1][l] = h[0][1] + az * D1 + dz * D0;
-    L.c[2][l] = h[0][2] + az * D2 + dz * D1;
-    L.c[3][l] = dz * D2;
+  const F8 d[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+  F8 A[4], B[4];
+  for (int e = 0; e < 4; ++e) {
+    const F8 diff = g[2 * e + 1] - g[2 * e];
+    A[e] = g[2 * e] + a[0] * diff;
+    B[e] = d[0] * diff;
   }
+  F8 h[2][3];
+  for (int q = 0; q < 2; ++q) {
+    const F8 P = A[2 * q + 1] - A[2 * q], Q = B[2 * q + 1] - B[2 * q];
+    h[q][0] = A[2 * q] + a[1] * P;
+    h[q][1] = B[2 * q] + a[1] * Q + d[1] * P;
+    h[q][2] = d[1] * Q;
+  }
+  const F8 D0 = h[1][0] - h[0][0], D1 = h[1][1] - h[0][1], D2 = h[1][2] - h[0][2];
+  L.c[0] = h[0][0] + a[2] * D0;
+  L.c[1] = h[0][1] + a[2] * D1 + d[2] * D0;
+  L.c[2] = h[0][2] + a[2] * D2 + d[2] * D1;
+  L.c[3] = d[2] * D2;
   // isolate: the roots of the derivative c1 + 2 c2 s + 3 c3 s^2 inside (0, 1), as
   // quadraticRootsInUnit finds them (every candidate computed, the kept ones selected).
-  for (int l = 0; l < W; ++l) {
-    const float q0 = L.c[1][l], q1 = 2.f * L.c[2][l], q2 = 3.f * L.c[3][l];
-    const float disc = q1 * q1 - 4.f * q2 * q0;
-    const float q = -0.5f * (q1 + std::copysign(std::sqrt(std::max(disc, 0.f)), q1));
-    const bool quadratic = q2 != 0.f;
-    const bool real = disc >= 0.f;
-    // First candidate: -q0 / q1 (linear) or q / q2; second: q0 / q (quadratic, q != 0).
-    const float r0 = quadratic ? q / q2 : -q0 / q1;
-    const float r1 = q0 / q;
-    const bool keep0 = (quadratic ? real : q1 != 0.f) && r0 > 0.f && r0 < 1.f;
-    const bool keep1 = quadratic && real && q != 0.f && r1 > 0.f && r1 < 1.f;
-    const bool swap = keep0 && keep1 && r0 > r1;
-    const float e0 = keep0 && !swap ? r0 : r1;
-    const float e1 = swap ? r0 : r1;
-    const int n = int(keep0) + int(keep1);
-    L.n[l] = n;
-    const float c0 = L.c[0][l], c1 = L.c[1][l], c2 = L.c[2][l], c3 = L.c[3][l];
-    const float fe0 = ((c3 * e0 + c2) * e0 + c1) * e0 + c0;
-    const float fe1 = ((c3 * e1 + c2) * e1 + c1) * e1 + c0;
-    L.k[0][l] = 0.f;
-    L.fk[0][l] = L.f0[l];
-    L.k[1][l] = n >= 1 ? e0 : 1.f;
-    L.fk[1][l] = n >= 1 ? fe0 : L.f1[l];
-    L.k[2][l] = n == 2 ? e1 : 1.f;
-    L.fk[2][l] = n == 2 ? fe1 : L.f1[l];
-    L.k[3][l] = 1.f;
-    L.fk[3][l] = L.f1[l];
-  }
-  for (int l = 0; l < W; ++l) {
-    float scale = 0;
-    for (int i = 0; i < 8; ++i) scale += std::fabs(L.g[i][l]);
-    L.scale[l] = scale;
-  }
+  const F8 zero = splat(0.f), one = splat(1.f);
+  const F8 q0 = L.c[1], q1 = splat(2.f) * L.c[2], q2 = splat(3.f) * L.c[3];
+  const F8 disc = q1 * q1 - splat(4.f) * q2 * q0;
+  F8 root;
+  for (int l = 0; l < W; ++l) root[l] = std::sqrt(disc[l] >= 0.f ? disc[l] : 0.f);
+  const F8 q = splat(-0.5f) * (q1 + copysign8(root, q1));
+  const I8 quadratic = q2 != zero;
+  const I8 real = disc >= zero;
+  // First candidate: -q0 / q1 (linear) or q / q2; second: q0 / q (quadratic, q != 0).
+  const F8 r0 = quadratic ? q / q2 : -q0 / q1;
+  const F8 r1 = q0 / q;
+  const I8 keep0 = (quadratic ? real : (q1 != zero)) & (r0 > zero) & (r0 < one);
+  const I8 keep1 = quadratic & real & (q != zero) & (r1 > zero) & (r1 < one);
+  const I8 swap = keep0 & keep1 & (r0 > r1);
+  const F8 e0 = (keep0 & ~swap) ? r0 : r1;
+  const F8 e1 = swap ? r0 : r1;
+  L.n1 = keep0 | keep1;
+  L.n2 = keep0 & keep1;
+  L.k[0] = zero;
+  L.fk[0] = L.f0;
+  L.k[1] = L.n1 ? e0 : one;
+  L.fk[1] = L.n1 ? cubic8(L.c, e0) : L.f1;
+  L.k[2] = L.n2 ? e1 : one;
+  L.fk[2] = L.n2 ? cubic8(L.c, e1) : L.f1;
+  L.k[3] = one;
+  L.fk[3] = L.f1;
+  F8 scale = zero;
+  for (int i = 0; i < 8; ++i) scale += fabs8(g[i]);
+  L.scale = scale;
 }
 
 __attribute__((target_clones("avx2", "default")))
@@ -110,70 +126,55 @@ uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, 
   Lanes L;
   prepare(segs, mask, L);
   // The first piece whose ends differ in class.
-  float lo[W], hi[W], flo[W], fhi[W];
-  bool live[W];
-  uint32_t found = 0;
-  for (int l = 0; l < W; ++l) {
-    const int n = L.n[l];
-    const bool c01 = inside(L.fk[0][l]) != inside(L.fk[1][l]);
-    const bool c12 = n >= 1 && inside(L.fk[1][l]) != inside(L.fk[2][l]);
-    const bool c23 = n == 2 && inside(L.fk[2][l]) != inside(L.fk[3][l]);
-    const int i = c01 ? 0 : c12 ? 1 : 2;
-    lo[l] = L.k[i][l];
-    hi[l] = L.k[i + 1][l];
-    flo[l] = L.fk[i][l];
-    fhi[l] = L.fk[i + 1][l];
-    live[l] = (mask >> l & 1) && (c01 || c12 || c23);
-    found |= uint32_t(live[l]) << l;
-  }
+  const I8 in0 = inside8(L.fk[0]), in1 = inside8(L.fk[1]), in2 = inside8(L.fk[2]), in3 = inside8(L.fk[3]);
+  const I8 c01 = in0 != in1, c12 = L.n1 & (in1 != in2), c23 = L.n2 & (in2 != in3);
+  I8 live = maskOf(mask) & (c01 | c12 | c23);
+  const uint32_t found = bits8(live);
   if (!found) return 0;
+  F8 lo = c01 ? L.k[0] : c12 ? L.k[1] : L.k[2];
+  F8 hi = c01 ? L.k[1] : c12 ? L.k[2] : L.k[3];
+  F8 flo = c01 ? L.fk[0] : c12 ? L.fk[1] : L.fk[2];
+  F8 fhi = c01 ? L.fk[1] : c12 ? L.fk[2] : L.fk[3];
   // refineBracket: Illinois-modified regula falsi, lanes retiring as the scalar loop breaks.
-  float loSafe[W], hiSafe[W], evalError[W];
-  int lastSide[W];
-  bool loInside[W];
-  for (int l = 0; l < W; ++l) {
-    loSafe[l] = lo[l];
-    hiSafe[l] = hi[l];
-    lastSide[l] = 0;
-    loInside[l] = inside(flo[l]);
-    evalError[l] = kEvalFactor * L.scale[l];
-  }
+  const F8 half = splat(0.5f);
+  const F8 evalError = splat(kEvalFactor) * L.scale;
+  const I8 loInside = inside8(flo);
+  F8 loSafe = lo, hiSafe = hi;
+  I8 lastSide = splat(0);
   for (int it = 0; it < iterations; ++it) {
-    bool any = false;
-    for (int l = 0; l < W; ++l) {
-      bool on = live[l] && hi[l] > lo[l];
-      float s = lo[l] + (hi[l] - lo[l]) * (flo[l] / (flo[l] - fhi[l]));
-      if (!(s > lo[l] && s < hi[l])) s = lo[l] + 0.5f * (hi[l] - lo[l]);
-      on = on && s > lo[l] && s < hi[l];
-      const float fs = ((L.c[3][l] * s + L.c[2][l]) * s + L.c[1][l]) * s + L.c[0][l];
-      const bool proven = std::fabs(fs) > evalError[l];
-      const bool toLo = inside(fs) == loInside[l];
-      const bool moveLo = on && toLo, moveHi = on && !toLo;
-      const float halfHi = lastSide[l] == -1 ? fhi[l] * 0.5f : fhi[l];
-      const float halfLo = lastSide[l] == 1 ? flo[l] * 0.5f : flo[l];
-      lo[l] = moveLo ? s : lo[l];
-      loSafe[l] = moveLo && proven ? s : loSafe[l];
-      hi[l] = moveHi ? s : hi[l];
-      hiSafe[l] = moveHi && proven ? s : hiSafe[l];
-      flo[l] = moveLo ? fs : moveHi ? halfLo : flo[l];
-      fhi[l] = moveHi ? fs : moveLo ? halfHi : fhi[l];
-      lastSide[l] = moveLo ? -1 : moveHi ? 1 : lastSide[l];
-      live[l] = on;
-      any = any || on;
-    }
-    if (!any) break;
+    I8 on = live & (hi > lo);
+    F8 s = lo + (hi - lo) * (flo / (flo - fhi));
+    s = ((s > lo) & (s < hi)) ? s : lo + half * (hi - lo);
+    on &= (s > lo) & (s < hi);
+    if (!bits8(on)) break;
+    const F8 fs = cubic8(L.c, s);
+    const I8 proven = fabs8(fs) > evalError;
+    const I8 toLo = inside8(fs) == loInside;
+    const I8 moveLo = on & toLo, moveHi = on & ~toLo;
+    const F8 halfHi = lastSide == splat(-1) ? fhi * half : fhi;
+    const F8 halfLo = lastSide == splat(1) ? flo * half : flo;
+    lo = moveLo ? s : lo;
+    loSafe = (moveLo & proven) ? s : loSafe;
+    hi = moveHi ? s : hi;
+    hiSafe = (moveHi & proven) ? s : hiSafe;
+    flo = moveLo ? fs : moveHi ? halfLo : flo;
+    fhi = moveHi ? fs : moveLo ? halfHi : fhi;
+    lastSide = moveLo ? splat(-1) : moveHi ? splat(1) : lastSide;
+    live = on;
   }
   // The root and its bound (refineBracket's end, withEvaluationBound, refineWithBound).
+  F8 s = lo + (hi - lo) * (flo / (flo - fhi));
+  s = ((s >= lo) & (s <= hi)) ? s : lo + half * (hi - lo);
+  const F8 proven = max8(s - loSafe, hiSafe - s);
+  const F8 bracket = max8(s - lo, hi - s);
+  const F8 slope = fabs8((splat(3.f) * L.c[3] * s + splat(2.f) * L.c[2]) * s + L.c[1]);
+  const F8 bound = splat(kEvalFactor) * L.scale / slope;
+  const F8 one = splat(1.f);
+  const F8 evaluation = (fabs8(bound) < splat(std::numeric_limits<float>::infinity())) ? min8(bound, one) : one;
+  const F8 error = min8(bracket + evaluation, max8(proven, bracket));
   for (int l = 0; l < W; ++l) {
-    float s = lo[l] + (hi[l] - lo[l]) * (flo[l] / (flo[l] - fhi[l]));
-    if (!(s >= lo[l] && s <= hi[l])) s = lo[l] + 0.5f * (hi[l] - lo[l]);
-    const float proven = std::max(s - loSafe[l], hiSafe[l] - s);
-    const float bracket = std::max(s - lo[l], hi[l] - s);
-    const float slope = std::fabs((3.f * L.c[3][l] * s + 2.f * L.c[2][l]) * s + L.c[1][l]);
-    const float bound = kEvalFactor * L.scale[l] / slope;
-    const float evaluation = std::isfinite(bound) ? std::min(bound, 1.f) : 1.f;
-    roots[l].s = s;
-    roots[l].sError = std::min(bracket + evaluation, std::max(proven, bracket));
+    roots[l].s = s[l];
+    roots[l].sError = error[l];
     roots[l].tangent = false;
   }
   return found;
@@ -183,26 +184,42 @@ __attribute__((target_clones("avx2", "default")))
 uint32_t isolationAny(const CellSegment<float>* const segs[W], uint32_t mask) {
   Lanes L;
   prepare(segs, mask, L);
-  uint32_t found = 0;
-  for (int l = 0; l < W; ++l) {
-    const bool in0 = inside(L.fk[0][l]);
-    const int n = L.n[l];
-    const bool yes = in0 != inside(L.f1[l]) || (n >= 1 && inside(L.fk[1][l]) != in0) ||
-                     (n == 2 && inside(L.fk[2][l]) != in0);
-    found |= uint32_t(yes && (mask >> l & 1)) << l;
-  }
-  return found;
+  const I8 in0 = inside8(L.fk[0]);
+  const I8 yes = (in0 != inside8(L.f1)) | (L.n1 & (inside8(L.fk[1]) != in0)) | (L.n2 & (inside8(L.fk[2]) != in0));
+  return bits8(yes) & mask;
 }
 
 }  // namespace
 
+// Fewer lanes than this to solve: lane by lane with the scalar intersector (the same bits; a
+// vector solve costs the same whether one lane or eight use it).
+constexpr int kVectorSolveLanes = 3;
+
 uint32_t IsolationPacket::first(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask,
                                 Root<float> roots[kPacketLanes]) const {
-  return mask ? isolationFirst(segs, mask, iterations, roots) : 0;
+  if (__builtin_popcount(mask) < kVectorSolveLanes) {
+    const IsolationIntersector scalar{iterations};
+    uint32_t found = 0;
+    for (uint32_t rest = mask; rest; rest &= rest - 1) {
+      const int l = __builtin_ctz(rest);
+      if (scalar.first(*segs[l], roots[l])) found |= 1u << l;
+    }
+    return found;
+  }
+  return isolationFirst(segs, mask, iterations, roots);
 }
 
 uint32_t IsolationPacket::any(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask) const {
-  return mask ? isolationAny(segs, mask) : 0;
+  if (__builtin_popcount(mask) < kVectorSolveLanes) {
+    const IsolationIntersector scalar{iterations};
+    uint32_t found = 0;
+    for (uint32_t rest = mask; rest; rest &= rest - 1) {
+      const int l = __builtin_ctz(rest);
+      if (scalar.any(*segs[l])) found |= 1u << l;
+    }
+    return found;
+  }
+  return isolationAny(segs, mask);
 }
 
 }  // namespace iso
