@@ -10,6 +10,7 @@
 
 #include "integrators/sampler.h"
 #include "scene/world.h"
+#include "volume/packet_walk.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -124,6 +125,77 @@ TEST(Packets, SameHitsAsSingleRaysOnRealMeshesAndVolumes) {
       if (HasFailure()) return;
     }
   }
+}
+
+// Segments that make the solve work: corners from a real volume's cells, and synthetic ones with
+// exact zeros, tiny and huge values, near-double roots (two crossings a hair apart) and faces
+// pinned at 0 or 1, as the walk makes them.
+std::vector<CellSegment<float>> hardSegments(size_t count, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u01(0, 1), sym(-1, 1);
+  std::vector<CellSegment<float>> out;
+  while (out.size() < count) {
+    CellSegment<float> seg;
+    const int kind = int(rng() % 5);
+    for (float& g : seg.g) {
+      switch (kind) {
+        case 0: g = sym(rng); break;                                            // generic
+        case 1: g = float(int(rng() % 5) - 2); break;                          // integer data, exact zeros
+        case 2: g = sym(rng) * std::ldexp(1.f, int(rng() % 60) - 30); break;   // wide magnitudes
+        case 3: g = 0.25f + 1e-6f * sym(rng); break;                           // almost flat
+        default: g = sym(rng) * 1e-3f + (rng() % 2 ? 0.5f : -0.5f); break;     // sharp
+      }
+    }
+    if (kind == 3) seg.g[rng() % 8] = -0.25f;  // a close pair of crossings in a corner
+    for (int a = 0; a < 3; ++a) {
+      seg.a[a] = rng() % 4 == 0 ? float(rng() % 2) : u01(rng);
+      seg.b[a] = rng() % 4 == 0 ? float(rng() % 2) : u01(rng);
+    }
+    seg.f0 = trilinear(seg.g, seg.a);
+    seg.f1 = trilinear(seg.g, seg.b);
+    const float tiny = std::numeric_limits<float>::denorm_min();
+    if (seg.f0 == 0) seg.f0 = rng() % 2 ? tiny : -tiny;
+    if (seg.f1 == 0) seg.f1 = rng() % 2 ? tiny : -tiny;
+    out.push_back(seg);
+  }
+  return out;
+}
+
+// The 8-lane isolation solve against the scalar IsolationIntersector, lane by lane, bit for bit:
+// every mask (from one lane to eight; below three lanes it is the scalar code itself), 1 to 8
+// refinement steps, first and any.
+TEST(Packets, VectorSolveGivesTheScalarBits) {
+  const std::vector<CellSegment<float>> segs = hardSegments(8 * 4000, 5);
+  std::mt19937 rng(9);
+  size_t roots = 0;
+  for (int iterations : {1, 3, 8}) {
+    const IsolationIntersector scalar{iterations};
+    const IsolationPacket packet{iterations};
+    for (size_t k = 0; k + kPacketLanes <= segs.size(); k += kPacketLanes) {
+      const uint32_t mask = k < 8 * 100 ? 0xffu : (rng() & 0xffu) | 1u << (rng() % 8);
+      const CellSegment<float>* lanes[kPacketLanes];
+      for (int l = 0; l < kPacketLanes; ++l) lanes[l] = &segs[k + size_t(l)];
+      Root<float> got[kPacketLanes];
+      const uint32_t found = packet.first(lanes, mask, got);
+      const uint32_t any = packet.any(lanes, mask);
+      for (int l = 0; l < kPacketLanes; ++l) {
+        if (!(mask >> l & 1)) {
+          EXPECT_FALSE(found >> l & 1);
+          continue;
+        }
+        Root<float> want;
+        const bool has = scalar.first(*lanes[l], want);
+        ASSERT_EQ(bool(found >> l & 1), has) << "segment " << k + size_t(l) << ", " << iterations << " steps";
+        ASSERT_EQ(bool(any >> l & 1), scalar.any(*lanes[l])) << "segment " << k + size_t(l);
+        if (!has) continue;
+        ++roots;
+        ASSERT_TRUE(sameBits(got[l].s, want.s)) << got[l].s << " vs " << want.s << ", segment " << k + size_t(l);
+        ASSERT_TRUE(sameBits(got[l].sError, want.sError)) << got[l].sError << " vs " << want.sError;
+        ASSERT_EQ(got[l].tangent, want.tangent);
+      }
+    }
+  }
+  EXPECT_GT(roots, 15000u);  // most segments hold a crossing: the comparison means something
 }
 
 // A packet holds 1 to 8 rays; anything else is a programming error, refused.
