@@ -53,8 +53,8 @@ bool clipToBox(const Vec3d& o, const Vec3d& d, const Vec3d& hi, double& t0, doub
 
 class SurfaceChecker {
  public:
-  SurfaceChecker(const World& world, const Transform& toWorld, double iso)
-      : m_world(world), m_grid(*world.volumes()[0].grid), m_toWorld(toWorld), m_iso(iso),
+  SurfaceChecker(const World& world, const Transform& toWorld, double iso, RayFlow flow)
+      : m_world(world), m_flow(flow), m_grid(*world.volumes()[0].grid), m_toWorld(toWorld), m_iso(iso),
         m_reference(m_grid, *world.volumes()[0].bricks, iso, IntersectorSpec{IntersectorKind::Reference, 8}) {
     // World -> grid coordinates: the inverse placement, then origin and spacing.
     m_toGrid = toWorld.inverse();
@@ -92,7 +92,7 @@ class SurfaceChecker {
     const Vec3d o0 = ray.origin(), d0(ray.dir);
     Hit hit;
     int hits = 0;
-    while (hits < 100000 && m_world.intersect(ray, hit, stats)) {
+    while (hits < 100000 && intersect(ray, hit, stats)) {
       ++hits;
       if (ts) ts->push_back(dot(hit.position64 - o0, d0) / dot(d0, d0));
       ray = spawnRay(hit, ray.dir);
@@ -232,14 +232,14 @@ class SurfaceChecker {
       r.startInside = inside(toGrid(o + d * std::max(t0, 0.0)));
       r.endInside = inside(toGrid(o + d * t1));
       Hit hit;
-      const bool found = m_world.intersect(ray, hit, stats);
+      const bool found = intersect(ray, hit, stats);
       if (keep && found) r.hits.push_back(hit.t);
       if (r.startInside != r.endInside && !found) {
         ++c.insideEscapes;
         r.what = "inside escape (no hit where the class changes)";
       }
     } else {
-      r.occluded = m_world.occluded(ray, stats);
+      r.occluded = occluded(ray, stats);
       // The same ray as the occlusion query (a normalised copy ends elsewhere by rounding).
       const Vec3d end = o + d;
       const int hits = trace(ray, &end, stats, nullptr, hitTs);
@@ -258,7 +258,38 @@ class SurfaceChecker {
   }
 
  private:
+  // The renderer's queries in the chosen ray flow (WatertightOptions::rayFlow).
+  bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
+    if (m_flow == RayFlow::Scalar) return m_world.intersect(ray, hit, stats);
+    Ray rays[World::kPacket];
+    Hit hits[World::kPacket];
+    bool found[World::kPacket];
+    std::fill(std::begin(rays), std::end(rays), ray);
+    TraversalStats lanes;
+    m_world.intersectPacket(rays, World::kPacket, hits, found, lanes);
+    addOneLane(stats, lanes);
+    hit = hits[0];
+    return found[0];
+  }
+  bool occluded(const Ray& ray, TraversalStats& stats) const {
+    if (m_flow == RayFlow::Scalar) return m_world.occluded(ray, stats);
+    Ray rays[World::kPacket];
+    bool blocked[World::kPacket];
+    std::fill(std::begin(rays), std::end(rays), ray);
+    TraversalStats lanes;
+    m_world.occludedPacket(rays, World::kPacket, blocked, lanes);
+    addOneLane(stats, lanes);
+    return blocked[0];
+  }
+  // The packet's lanes did the same work: one lane's share.
+  static void addOneLane(TraversalStats& to, const TraversalStats& packet) {
+    to.cellsVisited += packet.cellsVisited / World::kPacket;
+    to.cellsSolved += packet.cellsSolved / World::kPacket;
+    to.rootsRefined += packet.rootsRefined / World::kPacket;
+  }
+
   const World& m_world;
+  RayFlow m_flow;
   const Grid& m_grid;
   Transform m_toWorld, m_toGrid;
   double m_iso;
@@ -272,7 +303,8 @@ struct AloneSurface {
   VolumeDesc desc;
   std::unique_ptr<World> world;
   std::unique_ptr<SurfaceChecker> checker;
-  AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset) {
+  AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset,
+               RayFlow flow) {
     SceneDesc alone;
     alone.path = scene.path;
     desc = scene.volumes[v];
@@ -282,7 +314,7 @@ struct AloneSurface {
     alone.volumes.push_back(desc);
     world = std::make_unique<World>(alone, intersector);
     // Grid space to world as the World places it: a file's own affine (NIfTI), then the scene's.
-    checker = std::make_unique<SurfaceChecker>(*world, world->volumes()[0].transform, desc.isosurfaces[0].value);
+    checker = std::make_unique<SurfaceChecker>(*world, world->volumes()[0].transform, desc.isosurfaces[0].value, flow);
   }
 };
 
@@ -294,7 +326,7 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   for (size_t v = 0; v < scene.volumes.size(); ++v)
     for (size_t k = 0; k < scene.volumes[v].isosurfaces.size(); ++k) {
-      const AloneSurface alone(scene, v, k, intersector, options.offset);
+      const AloneSurface alone(scene, v, k, intersector, options.offset, options.rayFlow);
       tbb::enumerable_thread_specific<WatertightCounts> counts;
       tbb::enumerable_thread_specific<std::vector<FailedRay>> failures;
       arena.execute([&] {
@@ -360,7 +392,7 @@ std::string hexList(const std::vector<double>& ts) {
 }  // namespace
 
 void writeFailures(const std::string& path, const FailureFile& file) {
-  std::string text = "# isotrace watertight failures: intersector=" + file.intersector + " seed=" + std::to_string(file.seed) +
+  std::string text = "# isotrace watertight failures: intersector=" + file.intersector + " ray_flow=" + rayFlowName(file.rayFlow) + " seed=" + std::to_string(file.seed) +
                      " offset=" + hex(file.offset.x) + "," + hex(file.offset.y) + "," + hex(file.offset.z) +
                      " scene=" + file.scene + "\n";
   for (const FailedRay& r : file.rays)
@@ -431,6 +463,9 @@ FailureFile readFailures(const std::string& path) {
         const size_t eq = field.find('=');
         const std::string key = field.substr(0, eq), value = eq == std::string::npos ? "" : field.substr(eq + 1);
         if (key == "intersector") file.intersector = value;
+        else if (key == "ray_flow") {
+          if (!parseRayFlow(value, file.rayFlow)) fail("ray_flow: unknown ray flow '" + value + "' (known: wavefront, scalar)");
+        }
         else if (key == "seed") file.seed = integer(key, value, uint64_t(1) << 62);
         else if (key == "offset") file.offset = three(key, value);
         else fail("unknown header field '" + key + "'");
@@ -478,7 +513,7 @@ FailureFile readFailures(const std::string& path) {
   return file;
 }
 
-std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset,
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
                                       const std::vector<FailedRay>& rays) {
   std::map<std::pair<int, int>, std::unique_ptr<AloneSurface>> surfaces;
   std::vector<FailedRay> out;
@@ -488,7 +523,7 @@ std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorS
       throw InputError(scene.path, "", "the failure file names iso-surface " + std::to_string(given.surface) + " of volume " +
                                            std::to_string(given.volume) + ", which this scene does not have");
     auto& slot = surfaces[{given.volume, given.surface}];
-    if (!slot) slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset);
+    if (!slot) slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset, flow);
     FailedRay r = given;
     WatertightCounts counts;
     TraversalStats stats;

@@ -70,6 +70,10 @@ struct WatertightOptions {
   Vec3d offset{0, 0, 0};  // added to every volume's placement (e.g. 1e5 to test far away)
   int threads = 0;        // 0: all cores; the counts do not depend on it
   bool keepFailures = false;  // keep every failing ray (at most kMaxKeptFailures per surface)
+  // How the renderer's queries are made: `wavefront` traces each query as an 8-ray Embree packet
+  // holding the ray in every lane (World::intersectPacket), so that every answer comes from the
+  // packet walk of the bricks and its 8-lane solve; `scalar` one ray at a time.
+  RayFlow rayFlow = RayFlow::Wavefront;
 };
 constexpr size_t kMaxKeptFailures = 100000;
 
@@ -81,6 +85,7 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
 // (exact). Read back by readFailures, which validates every field (InputErrors name the line).
 struct FailureFile {
   std::string scene, intersector;
+  RayFlow rayFlow = RayFlow::Scalar;  // files written before ray flows existed traced one ray at a time
   uint64_t seed = 1;
   Vec3d offset{0, 0, 0};
   std::vector<FailedRay> rays;
@@ -90,7 +95,7 @@ FailureFile readFailures(const std::string& path);
 
 // Replays failed rays alone against the scene (the same volume, surface, intersector and offset):
 // each ray's test is run again and its outcome written into a copy (what is "" when it passes).
-std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset,
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
                                       const std::vector<FailedRay>& rays);
 
 }  // namespace iso

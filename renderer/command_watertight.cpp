@@ -41,14 +41,15 @@ std::string listOf(const std::vector<double>& ts) {
 // `--replay FILE`: each failing ray of a dump, run alone again; what it found then and now.
 int replay(const CheckFlags& flags) {
   for (const auto& [given, name] : {std::pair{!flags.intersector.empty(), "--intersector"}, {!flags.offset.empty(), "--offset"},
-                                    {!flags.dump.empty(), "--dump"}, {!flags.json.empty(), "--json"}})
-    if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector and the offset");
+                                    {!flags.dump.empty(), "--dump"}, {!flags.json.empty(), "--json"},
+                                    {!flags.rayFlow.empty(), "--ray-flow"}})
+    if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector, ray flow and offset");
   const FailureFile file = readFailures(flags.replay);
   const SceneDesc scene = parseSceneFile(flags.scene);
   IntersectorSpec spec;
   std::string error;
   if (!parseIntersector(file.intersector, spec, error)) throw InputError(flags.replay, "line 1", "intersector: " + error);
-  const std::vector<FailedRay> now = replayFailures(scene, spec, file.offset, file.rays);
+  const std::vector<FailedRay> now = replayFailures(scene, spec, file.offset, file.rayFlow, file.rays);
   std::printf("replay %s on %s: intersector %s, offset (%a, %a, %a), %zu rays\n", flags.replay.c_str(), flags.scene.c_str(),
               file.intersector.c_str(), file.offset.x, file.offset.y, file.offset.z, file.rays.size());
   size_t failing = 0;
@@ -88,13 +89,16 @@ int watertight(const CheckFlags& flags) {
   options.seed = uint64_t(flags.seed);
   options.offset = parseOffset(flags.offset);
   options.threads = flags.threads;
+  options.rayFlow = scene.settings.rayFlow;
+  if (!flags.rayFlow.empty() && !parseRayFlow(flags.rayFlow, options.rayFlow))
+    throw InputError("--ray-flow", "", "unknown ray flow '" + flags.rayFlow + "' (known: wavefront, scalar)");
   options.keepFailures = !flags.dump.empty();
   if (!flags.dump.empty()) checkWritable(flags.dump);
   const auto start = std::chrono::steady_clock::now();
   const std::vector<WatertightReport> reports = checkWatertight(scene, spec, options);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::printf("watertight %s: intersector %s, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)\n",
-              flags.scene.c_str(), intersectorName(spec).c_str(), flags.rays, flags.seed, options.offset.x,
+  std::printf("watertight %s: intersector %s, %s flow, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)\n",
+              flags.scene.c_str(), intersectorName(spec).c_str(), rayFlowName(options.rayFlow), flags.rays, flags.seed, options.offset.x,
               options.offset.y, options.offset.z);
   std::printf("%-7s %-10s %9s %10s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "reference",
               "parity_errors", "self_hits", "inside_escapes", "shadow_mismatches");
@@ -133,6 +137,7 @@ int watertight(const CheckFlags& flags) {
     FailureFile file;
     file.scene = flags.scene;
     file.intersector = intersectorName(spec);
+    file.rayFlow = options.rayFlow;
     file.seed = uint64_t(flags.seed);
     file.offset = options.offset;
     for (const WatertightReport& r : reports) file.rays.insert(file.rays.end(), r.failures.begin(), r.failures.end());
@@ -155,6 +160,7 @@ Command addWatertightCommand(CLI::App& app) {
   cmd->add_option("--rays", f.rays, "rays per test and iso-surface (default 100000)")->check(CLI::Range(1, 1 << 30));
   cmd->add_option("--intersector", f.intersector, std::string("intersector: ") + intersectorList());
   cmd->add_option("--seed", f.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
+  cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: each query an 8-lane packet, the packet walk) or scalar");
   cmd->add_option("--offset", f.offset, "move every volume by X,Y,Z (e.g. 1e5,1e5,1e5)");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--json", f.json, "write the counts as JSON");

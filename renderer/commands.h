@@ -42,7 +42,7 @@ std::string jsonString(const std::string& s);
 
 // The flags of the exactness commands (`watertight`, `bench`).
 struct CheckFlags {
-  std::string scene, intersector, json, offset, dump, replay;
+  std::string scene, intersector, json, offset, dump, replay, rayFlow;
   int rays = 100000, threads = 0;
   long long seed = 1;
 };

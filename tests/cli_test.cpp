@@ -276,6 +276,7 @@ TEST(Cli, WatertightAndBenchJson) {
   }
 
   for (const std::string& bad : {"watertight " + path + " --rays 0", "watertight " + path + " --intersector cubic",
+                                 "watertight " + path + " --ray-flow packets",
                                  "bench " + path + " --intersector isolation,nope", "watertight " + dir + "/none.json"}) {
     r = runIsotrace(bad);
     EXPECT_EQ(r.status, 2) << bad;

@@ -23,24 +23,27 @@ std::string volume(const std::string& source, const std::string& isos) {
 }
 
 // Isolation: zero parity errors, self hits, inside escapes and shadow mismatches over 10^5
-// rays per test and iso-surface, near and far from the origin.
+// rays per test and iso-surface one ray at a time, and over 2 * 10^4 through the packet walk
+// (each query an 8-lane packet, --ray-flow wavefront), near and far from the origin.
 TEST_P(Watertight, IsolationHasNoErrorsNearAndFar) {
   const SceneDesc scene = parseSceneText(GetParam().scene, "watertight.json");
-  for (const Vec3d offset : {Vec3d{0, 0, 0}, Vec3d{1e5, -1e5, 1e5}}) {
-    WatertightOptions options;
-    options.rays = 100000;
-    options.seed = 7;
-    options.offset = offset;
-    for (const WatertightReport& r : checkWatertight(scene, IntersectorSpec{}, options)) {
-      SCOPED_TRACE("iso " + std::to_string(r.iso) + " offset " + std::to_string(offset.x));
-      EXPECT_EQ(r.counts.rays, 100000u);
-      EXPECT_GT(r.counts.crossings, 10000u);
-      EXPECT_EQ(r.counts.parityErrors, 0u);
-      EXPECT_EQ(r.counts.selfHits, 0u);
-      EXPECT_EQ(r.counts.insideEscapes, 0u);
-      EXPECT_EQ(r.counts.shadowMismatches, 0u);
+  for (const Vec3d offset : {Vec3d{0, 0, 0}, Vec3d{1e5, -1e5, 1e5}})
+    for (const auto& [flow, rays] : {std::pair{RayFlow::Scalar, 100000}, std::pair{RayFlow::Wavefront, 20000}}) {
+      WatertightOptions options;
+      options.rays = rays;
+      options.seed = 7;
+      options.offset = offset;
+      options.rayFlow = flow;
+      for (const WatertightReport& r : checkWatertight(scene, IntersectorSpec{}, options)) {
+        SCOPED_TRACE("iso " + std::to_string(r.iso) + " offset " + std::to_string(offset.x) + " " + rayFlowName(flow));
+        EXPECT_EQ(r.counts.rays, uint64_t(rays));
+        EXPECT_GT(r.counts.crossings, uint64_t(rays / 10));
+        EXPECT_EQ(r.counts.parityErrors, 0u);
+        EXPECT_EQ(r.counts.selfHits, 0u);
+        EXPECT_EQ(r.counts.insideEscapes, 0u);
+        EXPECT_EQ(r.counts.shadowMismatches, 0u);
+      }
     }
-  }
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -132,7 +135,7 @@ TEST(WatertightDump, FailuresReplayAloneToTheSameOutcome) {
   ASSERT_EQ(back.rays.size(), file.rays.size());
   EXPECT_EQ(back.offset, file.offset);
   EXPECT_EQ(back.intersector, "schwarze");
-  const std::vector<FailedRay> again = replayFailures(scene, schwarze, back.offset, back.rays);
+  const std::vector<FailedRay> again = replayFailures(scene, schwarze, back.offset, back.rayFlow, back.rays);
   for (size_t i = 0; i < again.size(); ++i) {
     const FailedRay &a = file.rays[i], &b = back.rays[i], &c = again[i];
     EXPECT_EQ(a.org, b.org);
@@ -144,7 +147,7 @@ TEST(WatertightDump, FailuresReplayAloneToTheSameOutcome) {
   }
   // With the reference intersector the same rays pass.
   IntersectorSpec reference{IntersectorKind::Reference, 8};
-  for (const FailedRay& r : replayFailures(scene, reference, back.offset, back.rays))
+  for (const FailedRay& r : replayFailures(scene, reference, back.offset, back.rayFlow, back.rays))
     EXPECT_EQ(r.what, "") << testName(r.test) << " ray " << r.index;
 }
 
@@ -159,7 +162,7 @@ TEST(WatertightDump, TheHuntedFailuresPass) {
     IntersectorSpec spec;
     std::string error;
     ASSERT_TRUE(parseIntersector(file.intersector, spec, error)) << error;
-    for (const FailedRay& r : replayFailures(scene, spec, file.offset, file.rays))
+    for (const FailedRay& r : replayFailures(scene, spec, file.offset, file.rayFlow, file.rays))
       EXPECT_EQ(r.what, "") << field << ": " << testName(r.test) << " ray " << r.index << " of iso-surface " << r.surface;
   }
 }
@@ -189,7 +192,7 @@ TEST(WatertightDump, MalformedFailureFilesAreRefused) {
   test::writeText(dir + "/f.txt", header + "inside volume=0 surface=3 org=1,2,3 dir=1,0,0 tfar=1 what=x\n");
   const SceneDesc scene = parseSceneText(volume(R"("procedural": {"field": "sphere", "resolution": [8, 8, 8]})", R"({"value": 0.5})"),
                                          dir + "/s.json");
-  test::expectRefusal<InputError>([&] { replayFailures(scene, IntersectorSpec{}, {0, 0, 0}, readFailures(dir + "/f.txt").rays); },
+  test::expectRefusal<InputError>([&] { replayFailures(scene, IntersectorSpec{}, {0, 0, 0}, RayFlow::Scalar, readFailures(dir + "/f.txt").rays); },
                                   dir + "/s.json", "names iso-surface 3 of volume 0, which this scene does not have");
 }
 
