@@ -9,7 +9,8 @@
 #
 # Options: --rough-rays N (default 100000000 per surface), --real-rays N (default 10000000),
 #          --seeds "1 2 3" (rough fields), --intersector NAME (default isolation; `reference`
-#          is the double-precision control), --threads N, --out DIR (default out/exactness).
+#          is the double-precision control), --ray-flow F (default wavefront: every query through
+#          the packet walk; scalar: one ray at a time), --threads N, --out DIR (default out/exactness).
 # Time: the machine does about 1e5 rays per second per core: the defaults take hours. For a
 # quick look: bench/exactness.sh --rough-rays 1000000 --real-rays 100000.
 set -euo pipefail
@@ -18,6 +19,7 @@ roughRays=100000000
 realRays=10000000
 seeds="1 2 3"
 intersector=isolation
+rayFlow=wavefront
 threads=0
 out=out/exactness
 while [ $# -gt 0 ]; do
@@ -26,6 +28,7 @@ while [ $# -gt 0 ]; do
     --real-rays) realRays="$2"; shift 2 ;;
     --seeds) seeds="$2"; shift 2 ;;
     --intersector) intersector="$2"; shift 2 ;;
+    --ray-flow) rayFlow="$2"; shift 2 ;;
     --threads) threads="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     *) echo "exactness: unknown option '$1' (see the head of bench/exactness.sh)" >&2; exit 2 ;;
@@ -38,13 +41,13 @@ isotrace=build/isotrace
 [ -x $isotrace ] || { echo "exactness: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 mkdir -p "$out"
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
-echo "exactness: intersector $intersector, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee "$out/README.txt"
+echo "exactness: intersector $intersector, $rayFlow flow, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee "$out/README.txt"
 
 run() {  # NAME SCENE RAYS OFFSET
   local name=$1 scene=$2 rays=$3 offset=$4
   [ "$rays" -gt 0 ] || return 0
   echo "exactness: $name: $rays rays per surface, offset $offset ..." >&2
-  $isotrace watertight "$scene" --rays "$rays" --intersector "$intersector" --offset "$offset" --threads "$threads" \
+  $isotrace watertight "$scene" --rays "$rays" --intersector "$intersector" --ray-flow "$rayFlow" --offset "$offset" --threads "$threads" \
     --json "$out/$name.json" --dump "$out/$name.failures.txt" > "$out/$name.txt"
 }
 for seed in $seeds; do
