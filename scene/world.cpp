@@ -726,9 +726,9 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 
 void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const {
   if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket: 1 to 8 rays");
-  Ray start[kPacket];
-  Vec3d origin[kPacket];
-  IsoRayLane lanes[kPacket];
+  LaneSlots<Ray> start;
+  LaneSlots<Vec3d> origin;
+  LaneSlots<IsoRayLane> lanes;
   alignas(32) int valid[kPacket] = {};
   alignas(32) RTCRayHit8 packet;
   for (int i = 0; i < kPacket; ++i) {
@@ -742,12 +742,13 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
     found[i] = false;
     // What intersect() does before Embree: a ray leaving an iso-surface starts on its volume's
     // box, and may cross at once where its start cell is seen by no brick query.
-    start[i] = startInsideVolume(rays[i]);
+    start.emplace(i, startInsideVolume(rays[i]));
     if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], &hits[i], stats)) {
       found[i] = true;
       continue;
     }
-    origin[i] = start[i].origin();
+    origin.emplace(i, start[i].origin());
+    lanes.emplace(i);
     lanes[i].origin = &origin[i];
     lanes[i].direction = Vec3d(start[i].dir);
     lanes[i].tfar = start[i].tfar;
@@ -764,7 +765,7 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
     any = true;
   }
   if (!any) return;
-  IsoRayContext context(lanes);
+  IsoRayContext context(lanes.data());
   rtcIntersect8(valid, m_scene, &context.embree, &packet);
   addStats(stats, context.stats);
   for (int i = 0; i < n; ++i) {
@@ -776,9 +777,9 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
 
 void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const {
   if (n < 1 || n > kPacket) throw std::logic_error("World::occludedPacket: 1 to 8 rays");
-  Ray start[kPacket];
-  Vec3d origin[kPacket];
-  IsoRayLane lanes[kPacket];
+  LaneSlots<Ray> start;
+  LaneSlots<Vec3d> origin;
+  LaneSlots<IsoRayLane> lanes;
   alignas(32) int valid[kPacket] = {};
   alignas(32) RTCRay8 packet;
   for (int i = 0; i < kPacket; ++i) {
@@ -788,12 +789,13 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   bool any = false;
   for (int i = 0; i < n; ++i) {
     blocked[i] = false;
-    start[i] = startInsideVolume(rays[i]);
+    start.emplace(i, startInsideVolume(rays[i]));
     if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], nullptr, stats)) {
       blocked[i] = true;
       continue;
     }
-    origin[i] = start[i].origin();
+    origin.emplace(i, start[i].origin());
+    lanes.emplace(i);
     lanes[i].origin = &origin[i];
     lanes[i].direction = Vec3d(start[i].dir);
     lanes[i].tfar = start[i].tfar;
@@ -810,7 +812,7 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
     any = true;
   }
   if (!any) return;
-  IsoRayContext context(lanes);
+  IsoRayContext context(lanes.data());
   rtcOccluded8(valid, m_scene, &context.embree, &packet);
   addStats(stats, context.stats);
   for (int i = 0; i < n; ++i)

@@ -15,6 +15,7 @@
 #include "scene/material.h"
 #include "scene/scene.h"
 #include "volume/iso_surface.h"
+#include "volume/packet_walk.h"
 
 namespace iso {
 

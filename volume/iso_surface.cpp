@@ -176,20 +176,20 @@ uint32_t IsoSurface::packetQuery(uint32_t primitive, const PacketLane* lanes, ui
   auto run = [&](const auto& solver) {
     return withCellAccess(m_grid, &m_cellClasses[primitive], p.brickOrigin, [&](const auto& cells) {
       using Cells = std::decay_t<decltype(cells)>;
-      GridRay<float> rays[kPacketLanes];
-      ExactEnds exact[kPacketLanes];
-      CellWalk<float, Cells> walks[kPacketLanes];
-      CellHit<float> cellHits[kPacketLanes];
+      LaneSlots<GridRay<float>> rays;
+      LaneSlots<ExactEnds> exact;
+      LaneSlots<CellWalk<float, Cells>> walks;
+      LaneSlots<CellHit<float>> cellHits;
       uint32_t live = 0;
       for (uint32_t rest = mask; rest; rest &= rest - 1) {
         const int l = __builtin_ctz(rest);
         const PacketLane& r = lanes[l];
-        floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays[l], exact[l]);
-        walks[l] = CellWalk<float, Cells>(cells, float(m_iso), rays[l], p.lo, p.hi, float(r.tnear), float(r.tfar),
-                                          r.start, &exact[l]);
-        if (walks[l].begin()) live |= 1u << l;
+        floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays.emplace(l), exact.emplace(l));
+        CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], p.lo, p.hi, float(r.tnear),
+                                                     float(r.tfar), r.start, &exact[l]);
+        if (walk.begin()) live |= 1u << l;
       }
-      const uint32_t yes = traversePacket<AnyHit>(walks, live, solver, cellHits, stats);
+      const uint32_t yes = traversePacket<AnyHit>(walks.data(), live, solver, cellHits.data(), stats);
       if constexpr (!AnyHit)
         for (uint32_t rest = yes; rest; rest &= rest - 1) {
           const int l = __builtin_ctz(rest);
@@ -363,19 +363,20 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   const unsigned N = args->N;
   RTCRayN* rays = RTCRayHitN_RayN(args->rayhit, N);
   RTCHitN* hits = RTCRayHitN_HitN(args->rayhit, N);
-  IsoSurface::PacketLane lanes[kPacketLanes];
-  SurfaceHit found[kPacketLanes];
+  LaneSlots<IsoSurface::PacketLane> lanes;
+  LaneSlots<SurfaceHit> found;
   uint32_t mask = 0;
   for (unsigned i = 0; i < std::min(N, unsigned(kPacketLanes)); ++i) {  // World traces 1 or 8 rays at once
     if (!args->valid[i]) continue;
-    lanes[i] = packetLane(*surface, context->lanes[i], rays, N, i);
+    lanes.emplace(int(i), packetLane(*surface, context->lanes[i], rays, N, i));
+    found.emplace(int(i));
     mask |= 1u << i;
   }
   if (N == 1) {
     mask = mask && surface->intersectBrick(args->primID, lanes[0].org, lanes[0].dir, lanes[0].tnear, lanes[0].tfar,
                                            found[0], context->stats, lanes[0].start, lanes[0].cache);
   } else {
-    mask = surface->intersectBrickPacket(args->primID, lanes, mask, found, context->stats);
+    mask = surface->intersectBrickPacket(args->primID, lanes.data(), mask, found.data(), context->stats);
   }
   for (; mask; mask &= mask - 1) {
     const unsigned i = unsigned(__builtin_ctz(mask));
@@ -406,18 +407,18 @@ void occludedCallback(const RTCOccludedFunctionNArguments* args) {
   auto* context = reinterpret_cast<IsoRayContext*>(args->context);
   const unsigned N = args->N;
   RTCRayN* rays = args->ray;
-  IsoSurface::PacketLane lanes[kPacketLanes];
+  LaneSlots<IsoSurface::PacketLane> lanes;
   uint32_t mask = 0;
   for (unsigned i = 0; i < std::min(N, unsigned(kPacketLanes)); ++i) {  // World traces 1 or 8 rays at once
     if (!args->valid[i]) continue;
-    lanes[i] = packetLane(*surface, context->lanes[i], rays, N, i);
+    lanes.emplace(int(i), packetLane(*surface, context->lanes[i], rays, N, i));
     mask |= 1u << i;
   }
   if (N == 1) {
     mask = mask && surface->occludedBrick(args->primID, lanes[0].org, lanes[0].dir, lanes[0].tnear, lanes[0].tfar,
                                           context->stats, lanes[0].start, lanes[0].cache);
   } else {
-    mask = surface->occludedBrickPacket(args->primID, lanes, mask, context->stats);
+    mask = surface->occludedBrickPacket(args->primID, lanes.data(), mask, context->stats);
   }
   for (; mask; mask &= mask - 1) RTCRayN_tfar(rays, N, unsigned(__builtin_ctz(mask))) = -INFINITY;
 }

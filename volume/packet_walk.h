@@ -8,12 +8,34 @@
 // contraction: packet_walk.cpp is built with -ffp-contract=off); tests/packet_test.cpp checks
 // it lane by lane on real volumes. The other intersectors solve lane by lane.
 #include <cstdint>
+#include <new>
+#include <type_traits>
+#include <utility>
 
 #include "volume/traversal.h"
 
 namespace iso {
 
 constexpr int kPacketLanes = 8;
+
+// Per-lane scratch of a packet query, left uninitialised: a query constructs (or assigns) the
+// entries of its active lanes only. The types held are trivially destructible plain data;
+// zero-filling 8 of each on every brick a packet visits cost more than the walk's setup.
+template <typename T>
+class LaneSlots {
+ public:
+  static_assert(std::is_trivially_destructible_v<T>);
+  T& operator[](int lane) { return *std::launder(reinterpret_cast<T*>(m_bytes) + lane); }
+  const T& operator[](int lane) const { return *std::launder(reinterpret_cast<const T*>(m_bytes) + lane); }
+  T* data() { return std::launder(reinterpret_cast<T*>(m_bytes)); }
+  template <typename... Args>
+  T& emplace(int lane, Args&&... args) {
+    return *new (m_bytes + sizeof(T) * size_t(lane)) T(std::forward<Args>(args)...);
+  }
+
+ private:
+  alignas(T) unsigned char m_bytes[sizeof(T) * kPacketLanes];
+};
 
 // The isolation intersector (IsolationIntersector in volume/intersectors.h) on up to 8 segments.
 // Lanes not in `mask` are ignored (their pointers may be null).
