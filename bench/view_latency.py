@@ -7,7 +7,8 @@ event stream, and --changes times moves iso-surface 0 between two values (a quar
 three quarters of the way between the current value and the volume's range ends); for each,
 the time from sending the change to the first frame of the new version, and the samples per
 pixel per second until the scene's spp is reached. Prints medians.
-Usage: bench/view_latency.py [--changes 10] [--integrator NAME] [SCENE.json ...]
+Usage: bench/view_latency.py [--changes 10] [--integrator NAME] [--ray-flow F] [SCENE.json ...]
+--ray-flow: the scene's integrator.ray_flow for the run (a copy of the scene beside it, removed after).
 """
 import argparse
 import http.client
@@ -59,12 +60,21 @@ def main():
     parser.add_argument("scenes", nargs="*")
     parser.add_argument("--changes", type=int, default=10)
     parser.add_argument("--integrator")
+    parser.add_argument("--ray-flow", choices=("wavefront", "scalar"))
     a = parser.parse_args()
     scenes = a.scenes or [os.path.join(ROOT, "examples", n + ".json") for n in ("default", "ct_head", "mri_brain")]
-    print("| scene | integrator | first preview after an iso change, ms (median, min-max) | spp reached | samples/s while refining (median) |")
-    print("|---|---|---|---|---|")
+    print("| scene | integrator | ray flow | first preview after an iso change, ms (median, min-max) | spp reached | samples/s while refining (median) |")
+    print("|---|---|---|---|---|---|")
     for scene in scenes:
-        server = subprocess.Popen([ISOTRACE, "view", scene, "--port", "0", "--resolution", "480x360"],
+        copy = None
+        if a.ray_flow:
+            with open(scene) as f:
+                desc = json.load(f)
+            desc.setdefault("integrator", {})["ray_flow"] = a.ray_flow
+            copy = os.path.join(os.path.dirname(os.path.abspath(scene)), ".view_latency_%d.json" % os.getpid())
+            with open(copy, "w") as f:
+                json.dump(desc, f)
+        server = subprocess.Popen([ISOTRACE, "view", copy or scene, "--port", "0", "--resolution", "480x360"],
                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         try:
             url = server.stdout.readline().strip()
@@ -96,12 +106,15 @@ def main():
                         rates.append(f["spp"] * 480 * 360 / elapsed)
                         break
                 latencies.append(first * 1000)
-            print("| %s | %s | %.0f (%.0f-%.0f) | %d | %.3g |" % (
-                os.path.splitext(os.path.basename(scene))[0], state["integrator"], statistics.median(latencies),
+            print("| %s | %s | %s | %.0f (%.0f-%.0f) | %d | %.3g |" % (
+                os.path.splitext(os.path.basename(scene))[0], state["integrator"], a.ray_flow or "scene's",
+                statistics.median(latencies),
                 min(latencies), max(latencies), reached, statistics.median(rates)))
         finally:
             server.send_signal(2)
             server.wait(timeout=10)
+            if copy:
+                os.remove(copy)
 
 
 if __name__ == "__main__":

@@ -67,8 +67,7 @@ class AmbientOcclusionIntegrator final : public Integrator {
 
 void Integrator::Li(const Ray& ray, Sampler& sampler, RayCounters& counters, SampleResult& out) const {
   PathState p;
-  p.ray = ray;
-  p.sampler = sampler;
+  p.begin(ray, sampler);
   start(p);
   while (p.tracing || p.shadowing) {
     if (p.shadowing) {

@@ -75,6 +75,20 @@ struct PathState {
   bool specular = true;    // the last bounce was a delta lobe (or the camera)
   Vec3f unblocked{0, 0, 0};  // what the waiting shadow ray adds to L if nothing blocks it
   bool unblockedIsDirect = false;  // ... and to `direct`
+
+  // A camera sample's fresh path: every field a stage reads before writing it is reset (the
+  // wavefront flow reuses its paths from pass to pass; the rest is written before it is read).
+  void begin(const Ray& camera, const Sampler& s) {
+    ray = camera;
+    sampler = s;
+    tracing = shadowing = false;
+    out = SampleResult();
+    L = direct = {0, 0, 0};
+    beta = {1, 1, 1};
+    bsdfPdf = 0;
+    bounce = segment = 0;
+    specular = true;
+  }
 };
 
 class Integrator {

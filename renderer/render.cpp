@@ -132,7 +132,7 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
   const int ns = s1 - s0;
   const size_t count = wf.pixels.size() * size_t(ns);
   if (count == 0) return 0;
-  wf.paths.assign(count, PathState());
+  if (wf.paths.size() < count) wf.paths.resize(count);  // reset path by path (PathState::begin)
   // The open pixels' index in wf.pixels by position in the tile (-1: converged).
   int slot[kTile][kTile];
   for (auto& row : slot) std::fill(std::begin(row), std::end(row), -1);
@@ -154,9 +154,9 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
             if (pixel < 0) continue;
             const int index = pixel * ns + (s - s0);
             PathState& p = wf.paths[size_t(index)];
-            p.sampler = Sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
-            const float jx = p.sampler.next(), jy = p.sampler.next();
-            p.ray = m_camera.generateRay(x + jx, y + jy);
+            Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
+            const float jx = sampler.next(), jy = sampler.next();
+            p.begin(m_camera.generateRay(x + jx, y + jy), sampler);
             m_integrator.start(p);
             if (!p.tracing) continue;
             p.tracing = false;
