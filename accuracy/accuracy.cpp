@@ -1,5 +1,7 @@
 #include "accuracy/accuracy.h"
 
+#include "volume/packet_walk.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -42,7 +44,7 @@ std::vector<TestRay> makeRays(const Grid& grid, RayKind kind, int n, uint64_t se
 }  // namespace
 
 AccuracyReport measureAccuracy(const Grid& grid, double iso, const IntersectorSpec& tested,
-                               RayKind kind, int n, uint64_t seed) {
+                               RayKind kind, int n, uint64_t seed, bool packets) {
   const BrickGrid bricks(grid);
   const IsoSurface reference(grid, bricks, iso, {IntersectorKind::Reference, 0});
   const IsoSurface surface(grid, bricks, iso, tested);
@@ -53,8 +55,24 @@ AccuracyReport measureAccuracy(const Grid& grid, double iso, const IntersectorSp
   std::vector<char> found(rays.size());
   TraversalStats stats;
   const auto start = std::chrono::steady_clock::now();
-  for (size_t i = 0; i < rays.size(); ++i)
-    found[i] = surface.intersect(rays[i].org, rays[i].dir, 0, tfar, hits[i], stats);
+  if (packets) {
+    for (size_t k = 0; k < rays.size(); k += kPacketLanes) {
+      const int n = int(std::min<size_t>(kPacketLanes, rays.size() - k));
+      IsoSurface::PacketLane lanes[kPacketLanes];
+      GridRayCache caches[kPacketLanes];
+      for (int l = 0; l < n; ++l) {
+        lanes[l].org = rays[k + size_t(l)].org;
+        lanes[l].dir = rays[k + size_t(l)].dir;
+        lanes[l].tfar = tfar;
+        lanes[l].cache = &caches[l];
+      }
+      const uint32_t yes = surface.intersectPacket(lanes, (1u << n) - 1, &hits[k], stats);
+      for (int l = 0; l < n; ++l) found[k + size_t(l)] = char(yes >> l & 1);
+    }
+  } else {
+    for (size_t i = 0; i < rays.size(); ++i)
+      found[i] = surface.intersect(rays[i].org, rays[i].dir, 0, tfar, hits[i], stats);
+  }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   AccuracyReport report;

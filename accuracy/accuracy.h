@@ -24,7 +24,9 @@ struct AccuracyReport {
 };
 
 // `rays` random rays of `kind` from a fixed seed through `grid`, placed where the grid says.
+// `packets`: the tested intersector walks the rays 8 at a time (IsoSurface::intersectPacket, the
+// packet walk of `--ray-flow wavefront`) instead of one at a time; the hits are the same bits.
 AccuracyReport measureAccuracy(const Grid& grid, double iso, const IntersectorSpec& tested,
-                               RayKind kind, int rays, uint64_t seed);
+                               RayKind kind, int rays, uint64_t seed, bool packets = false);
 
 }  // namespace iso

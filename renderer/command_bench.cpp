@@ -28,10 +28,13 @@ int bench(const CheckFlags& flags) {
     start = comma + 1;
   }
   if (flags.rays < 1) throw InputError("--rays", "", "must be at least 1");
+  RayFlow flow = scene.settings.rayFlow;
+  if (!flags.rayFlow.empty() && !parseRayFlow(flags.rayFlow, flow))
+    throw InputError("--ray-flow", "", "unknown ray flow '" + flags.rayFlow + "' (known: wavefront, scalar)");
   if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume to measure");
-  std::printf("bench %s: %d rays of each kind per iso-surface and intersector, single thread, seed %lld;\n"
+  std::printf("bench %s: %d rays of each kind per iso-surface and intersector, single thread, seed %lld, %s flow;\n"
               "error against `reference` in cell units (misses/false hits judged by each hit's own bound)\n",
-              flags.scene.c_str(), flags.rays, flags.seed);
+              flags.scene.c_str(), flags.rays, flags.seed, rayFlowName(flow));
   std::printf("%-7s %-9s %-10s %-12s %8s %8s %8s %10s %10s %10s %8s\n", "volume", "iso", "rays", "intersector",
               "refHits", "misses", "false", "median|dt|", "p99|dt|", "max|dt|", "ns/ray");
   std::string rows;
@@ -40,7 +43,8 @@ int bench(const CheckFlags& flags) {
     for (const IsoSurfaceDesc& iso : scene.volumes[v].isosurfaces)
       for (RayKind kind : {RayKind::Camera, RayKind::Secondary})
         for (const IntersectorSpec& spec : specs) {
-          const AccuracyReport r = measureAccuracy(grid, iso.value, spec, kind, flags.rays, uint64_t(flags.seed));
+          const AccuracyReport r = measureAccuracy(grid, iso.value, spec, kind, flags.rays, uint64_t(flags.seed),
+                                                     flow == RayFlow::Wavefront);
           const char* kindName = kind == RayKind::Camera ? "camera" : "secondary";
           std::printf("%-7zu %-9g %-10s %-12s %8llu %8llu %8llu %10.2e %10.2e %10.2e %8.0f\n", v, iso.value, kindName,
                       intersectorName(spec).c_str(), (unsigned long long)r.referenceHits,
@@ -61,7 +65,8 @@ int bench(const CheckFlags& flags) {
           rows += (rows.empty() ? "" : ",\n") + std::string(buf);
         }
   }
-  if (!flags.json.empty()) writeJsonFile(flags.json, "{\n  \"scene\": " + jsonString(flags.scene) + ",\n  \"results\": [\n" + rows + "\n  ]\n}\n");
+  if (!flags.json.empty()) writeJsonFile(flags.json, "{\n  \"scene\": " + jsonString(flags.scene) + ",\n  \"ray_flow\": " +
+                                          jsonString(rayFlowName(flow)) + ",\n  \"results\": [\n" + rows + "\n  ]\n}\n");
   return 0;
 }
 
@@ -77,6 +82,7 @@ Command addBenchCommand(CLI::App& app) {
   cmd->add_option("--rays", f.rays, "rays of each kind per iso-surface and intersector (default 20000)")
       ->check(CLI::Range(1, 1 << 26));
   cmd->add_option("--seed", f.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
+  cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: the rays walked 8 at a time, the packet walk) or scalar");
   cmd->add_option("--json", f.json, "write the results as JSON");
   return {cmd, [flags] { return bench(*flags); }};
 }

@@ -159,22 +159,21 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
 }
 
 template <bool AnyHit>
-uint32_t IsoSurface::packetQuery(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
-                                 TraversalStats& stats) const {
-  const Primitive& p = m_primitives[primitive];
+uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin,
+                                 const PacketLane* lanes, uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const {
   uint32_t found = 0;
   if (m_spec.kind == IntersectorKind::Reference) {  // double precision: lane by lane
     for (uint32_t rest = mask; rest; rest &= rest - 1) {
       const int l = __builtin_ctz(rest);
       const PacketLane& r = lanes[l];
-      const bool yes = query<AnyHit>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, r.org, r.dir, r.tnear,
-                                     r.tfar, AnyHit ? nullptr : &hits[l], stats, r.start, r.cache);
+      const bool yes = query<AnyHit>(lo, hi, classes, classOrigin, r.org, r.dir, r.tnear, r.tfar,
+                                     AnyHit ? nullptr : &hits[l], stats, r.start, r.cache);
       found |= uint32_t(yes) << l;
     }
     return found;
   }
   auto run = [&](const auto& solver) {
-    return withCellAccess(m_grid, &m_cellClasses[primitive], p.brickOrigin, [&](const auto& cells) {
+    return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       using Cells = std::decay_t<decltype(cells)>;
       LaneSlots<GridRay<float>> rays;
       LaneSlots<ExactEnds> exact;
@@ -185,7 +184,7 @@ uint32_t IsoSurface::packetQuery(uint32_t primitive, const PacketLane* lanes, ui
         const int l = __builtin_ctz(rest);
         const PacketLane& r = lanes[l];
         floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays.emplace(l), exact.emplace(l));
-        CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], p.lo, p.hi, float(r.tnear),
+        CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], lo, hi, float(r.tnear),
                                                      float(r.tfar), r.start, &exact[l]);
         if (walk.begin()) live |= 1u << l;
       }
@@ -210,12 +209,14 @@ uint32_t IsoSurface::packetQuery(uint32_t primitive, const PacketLane* lanes, ui
 
 uint32_t IsoSurface::intersectBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
                                           TraversalStats& stats) const {
-  return packetQuery<false>(primitive, lanes, mask, hits, stats);
+  const Primitive& p = m_primitives[primitive];
+  return packetQuery<false>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, lanes, mask, hits, stats);
 }
 
 uint32_t IsoSurface::occludedBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask,
                                          TraversalStats& stats) const {
-  return packetQuery<true>(primitive, lanes, mask, nullptr, stats);
+  const Primitive& p = m_primitives[primitive];
+  return packetQuery<true>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, lanes, mask, nullptr, stats);
 }
 
 bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
@@ -240,6 +241,12 @@ bool IsoSurface::intersect(const Vec3d& org, const Vec3d& dir, double tnear, dou
                            SurfaceHit& hit, TraversalStats& stats, StartClass start) const {
   const Vec3i d = m_grid.dims();
   return query<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, {}, org, dir, tnear, tfar, &hit, stats, start);
+}
+
+uint32_t IsoSurface::intersectPacket(const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
+                                     TraversalStats& stats) const {
+  const Vec3i d = m_grid.dims();
+  return packetQuery<false>({0, 0, 0}, {d.x - 1, d.y - 1, d.z - 1}, nullptr, {}, lanes, mask, hits, stats);
 }
 
 bool IsoSurface::occluded(const Vec3d& org, const Vec3d& dir, double tnear, double tfar,

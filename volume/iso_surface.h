@@ -103,6 +103,8 @@ class IsoSurface {
   uint32_t intersectBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
                                 TraversalStats& stats) const;
   uint32_t occludedBrickPacket(uint32_t primitive, const PacketLane* lanes, uint32_t mask, TraversalStats& stats) const;
+  // The same over the whole grid without Embree (as intersect()): `isotrace bench --ray-flow wavefront`.
+  uint32_t intersectPacket(const PacketLane* lanes, uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const;
   // With bricks, a ray that starts in an inactive brick has its first cell seen by no brick
   // query (inactive bricks are no Embree primitives). When its start class is given and that
   // brick lies strictly on the other side, the crossing is at the start: true, and `hit` (if
@@ -138,8 +140,8 @@ class IsoSurface {
              const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
              StartClass start, GridRayCache* cache = nullptr) const;
   template <bool AnyHit>
-  uint32_t packetQuery(uint32_t primitive, const PacketLane* lanes, uint32_t mask, SurfaceHit* hits,
-                       TraversalStats& stats) const;
+  uint32_t packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const PacketLane* lanes,
+                       uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const;
   // The float grid ray of a query and the double one's ends (from `cache` when it holds them).
   void floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
                      GridRayCache* cache, GridRay<float>& ray, ExactEnds& exact) const;
