@@ -606,6 +606,27 @@ RTCRayHit laneOf(const RTCRayHit8& packet, unsigned i) {
   return rh;
 }
 
+// What the iso-surface callbacks need of `ray` (its world origin in double, held by the caller in
+// `origin`): the lane's ray in double, its far end and its start class.
+void setLane(const Ray& ray, const Vec3d& origin, const std::vector<SurfaceInfo>& surfaces, IsoRayLane& lane) {
+  lane.origin = &origin;
+  lane.direction = Vec3d(ray.dir);
+  lane.tfar = ray.tfar;
+  startFromSurface(ray, surfaces, lane);
+}
+
+// Lane i of an 8-ray Embree packet set to `ray`.
+void packLane(const Ray& ray, int i, RTCRay8& packet) {
+  const RTCRay r = toEmbree(ray);
+  packet.org_x[i] = r.org_x; packet.org_y[i] = r.org_y; packet.org_z[i] = r.org_z;
+  packet.dir_x[i] = r.dir_x; packet.dir_y[i] = r.dir_y; packet.dir_z[i] = r.dir_z;
+  packet.tnear[i] = r.tnear;
+  packet.tfar[i] = r.tfar;
+  packet.mask[i] = r.mask;
+  packet.time[i] = 0;
+  packet.flags[i] = 0;
+}
+
 }  // namespace
 
 // The iso-surface hit at `t` on `ray`; `normal` in the surface's object space.
@@ -709,10 +730,7 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   IsoRayLane lane;
   IsoRayContext context(&lane);
   const Vec3d origin = ray.origin();
-  lane.origin = &origin;
-  lane.direction = Vec3d(ray.dir);
-  lane.tfar = ray.tfar;
-  startFromSurface(ray, m_surfaces, lane);
+  setLane(ray, origin, m_surfaces, lane);
   RTCRayHit rh{};
   rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
@@ -747,20 +765,8 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
       found[i] = true;
       continue;
     }
-    origin.emplace(i, start[i].origin());
-    lanes.emplace(i);
-    lanes[i].origin = &origin[i];
-    lanes[i].direction = Vec3d(start[i].dir);
-    lanes[i].tfar = start[i].tfar;
-    startFromSurface(start[i], m_surfaces, lanes[i]);
-    const RTCRay r = toEmbree(start[i]);
-    packet.ray.org_x[i] = r.org_x; packet.ray.org_y[i] = r.org_y; packet.ray.org_z[i] = r.org_z;
-    packet.ray.dir_x[i] = r.dir_x; packet.ray.dir_y[i] = r.dir_y; packet.ray.dir_z[i] = r.dir_z;
-    packet.ray.tnear[i] = r.tnear;
-    packet.ray.tfar[i] = r.tfar;
-    packet.ray.mask[i] = r.mask;
-    packet.ray.time[i] = 0;
-    packet.ray.flags[i] = 0;
+    setLane(start[i], origin.emplace(i, start[i].origin()), m_surfaces, lanes.emplace(i));
+    packLane(start[i], i, packet.ray);
     valid[i] = -1;
     any = true;
   }
@@ -794,20 +800,8 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
       blocked[i] = true;
       continue;
     }
-    origin.emplace(i, start[i].origin());
-    lanes.emplace(i);
-    lanes[i].origin = &origin[i];
-    lanes[i].direction = Vec3d(start[i].dir);
-    lanes[i].tfar = start[i].tfar;
-    startFromSurface(start[i], m_surfaces, lanes[i]);
-    const RTCRay r = toEmbree(start[i]);
-    packet.org_x[i] = r.org_x; packet.org_y[i] = r.org_y; packet.org_z[i] = r.org_z;
-    packet.dir_x[i] = r.dir_x; packet.dir_y[i] = r.dir_y; packet.dir_z[i] = r.dir_z;
-    packet.tnear[i] = r.tnear;
-    packet.tfar[i] = r.tfar;
-    packet.mask[i] = r.mask;
-    packet.time[i] = 0;
-    packet.flags[i] = 0;
+    setLane(start[i], origin.emplace(i, start[i].origin()), m_surfaces, lanes.emplace(i));
+    packLane(start[i], i, packet);
     valid[i] = -1;
     any = true;
   }
@@ -926,10 +920,7 @@ bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   IsoRayLane lane;
   IsoRayContext context(&lane);
   const Vec3d origin = ray.origin();
-  lane.origin = &origin;
-  lane.direction = Vec3d(ray.dir);
-  lane.tfar = ray.tfar;
-  startFromSurface(ray, m_surfaces, lane);
+  setLane(ray, origin, m_surfaces, lane);
   RTCRay r = toEmbree(ray);
   rtcOccluded1(m_scene, &context.embree, &r);
   stats.cellsVisited += context.stats.cellsVisited;
