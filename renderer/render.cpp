@@ -59,7 +59,7 @@ bool TileRenderer::converges(const PixelSums& p) const {
 namespace {
 
 // Adds one sample to its pixel's sums (both ray flows, in sample order).
-void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
+[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
   const bool background = !std::isfinite(result.depth);
   const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
   p.L += L;

@@ -814,7 +814,7 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
 }
 
 // The hit Embree found for `ray` (in `rh`), with the lane's iso-surface result.
-void World::fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const {
+[[gnu::always_inline]] inline void World::fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const {
   const GeometryRecord& rec = recordOf(rh.hit);
   hit = Hit();
   hit.incoming = ray.dir;

@@ -128,7 +128,7 @@ void IsoSurface::surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, co
 template <bool AnyHit>
 bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin,
                        const Vec3d& org, const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit,
-                       TraversalStats& stats, StartClass start, GridRayCache* cache) const {
+                       TraversalStats& stats, StartClass start, GridRayCache* cache, double tstop) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, on the grid's own sample type, and converts the hit to world space.
   auto run = [&](auto real, const auto& solver) {
@@ -142,7 +142,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
         ray = queryRay<Real>(m_grid, org, dir, tnear, start);
       CellHit<Real> cellHit;
       if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
-                                 cellHit, stats, start, std::is_same_v<Real, float> ? &exact : nullptr))
+                                 cellHit, stats, start, std::is_same_v<Real, float> ? &exact : nullptr, Real(tstop)))
         return false;
       if constexpr (!AnyHit) surfaceHit(cells, cellHit, dir, *hit);
       return true;
@@ -167,7 +167,7 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
       const int l = __builtin_ctz(rest);
       const PacketLane& r = lanes[l];
       const bool yes = query<AnyHit>(lo, hi, classes, classOrigin, r.org, r.dir, r.tnear, r.tfar,
-                                     AnyHit ? nullptr : &hits[l], stats, r.start, r.cache);
+                                     AnyHit ? nullptr : &hits[l], stats, r.start, r.cache, r.tstop);
       found |= uint32_t(yes) << l;
     }
     return found;
@@ -185,7 +185,7 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
         const PacketLane& r = lanes[l];
         floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays.emplace(l), exact.emplace(l));
         CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], lo, hi, float(r.tnear),
-                                                     float(r.tfar), r.start, &exact[l]);
+                                                     float(r.tfar), r.start, &exact[l], float(r.tstop));
         if (walk.begin()) live |= 1u << l;
       }
       const uint32_t yes = traversePacket<AnyHit>(walks.data(), live, solver, cellHits.data(), stats);
@@ -221,10 +221,10 @@ uint32_t IsoSurface::occludedBrickPacket(uint32_t primitive, const PacketLane* l
 
 bool IsoSurface::intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                                 double tfar, SurfaceHit& hit, TraversalStats& stats,
-                                StartClass start, GridRayCache* cache) const {
+                                StartClass start, GridRayCache* cache, double tstop) const {
   const Primitive& p = m_primitives[primitive];
   return query<false>(p.lo, p.hi, &m_cellClasses[primitive], p.brickOrigin, org, dir,
-                      tnear, tfar, &hit, stats, start, cache);
+                      tnear, tfar, &hit, stats, start, cache, tstop);
 }
 
 bool IsoSurface::occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
@@ -375,13 +375,13 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
   uint32_t mask = 0;
   for (unsigned i = 0; i < std::min(N, unsigned(kPacketLanes)); ++i) {  // World traces 1 or 8 rays at once
     if (!args->valid[i]) continue;
-    lanes.emplace(int(i), packetLane(*surface, context->lanes[i], rays, N, i));
+    lanes.emplace(int(i), packetLane(*surface, context->lanes[i], rays, N, i)).tstop = RTCRayN_tfar(rays, N, i);
     found.emplace(int(i));
     mask |= 1u << i;
   }
   if (N == 1) {
     mask = mask && surface->intersectBrick(args->primID, lanes[0].org, lanes[0].dir, lanes[0].tnear, lanes[0].tfar,
-                                           found[0], context->stats, lanes[0].start, lanes[0].cache);
+                                           found[0], context->stats, lanes[0].start, lanes[0].cache, lanes[0].tstop);
   } else {
     mask = surface->intersectBrickPacket(args->primID, lanes.data(), mask, found.data(), context->stats);
   }

@@ -84,9 +84,12 @@ class IsoSurface {
                 TraversalStats& stats, StartClass start = StartClass::Unknown) const;
   // The same on one active brick, activeBricks()[primitive], as Embree calls it.
   // `cache`, if given, holds the float grid ray of the same query across bricks.
+  // `tstop` (closest hits): a hit past it is of no use (a closer one is known); the walk may end
+  // there, the hit it finds before it is the same.
   bool intersectBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                       double tfar, SurfaceHit& hit, TraversalStats& stats,
-                      StartClass start = StartClass::Unknown, GridRayCache* cache = nullptr) const;
+                      StartClass start = StartClass::Unknown, GridRayCache* cache = nullptr,
+                      double tstop = INFINITY) const;
   bool occludedBrick(uint32_t primitive, const Vec3d& org, const Vec3d& dir, double tnear,
                      double tfar, TraversalStats& stats, StartClass start = StartClass::Unknown,
                      GridRayCache* cache = nullptr) const;
@@ -97,6 +100,7 @@ class IsoSurface {
   struct PacketLane {
     Vec3d org, dir;
     double tnear = 0, tfar = 0;
+    double tstop = INFINITY;  // as intersectBrick's
     StartClass start = StartClass::Unknown;
     GridRayCache* cache = nullptr;
   };
@@ -138,7 +142,7 @@ class IsoSurface {
   template <bool AnyHit>
   bool query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const Vec3d& org,
              const Vec3d& dir, double tnear, double tfar, SurfaceHit* hit, TraversalStats& stats,
-             StartClass start, GridRayCache* cache = nullptr) const;
+             StartClass start, GridRayCache* cache = nullptr, double tstop = INFINITY) const;
   template <bool AnyHit>
   uint32_t packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const PacketLane* lanes,
                        uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const;
