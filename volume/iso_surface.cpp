@@ -186,7 +186,10 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
         floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays.emplace(l), exact.emplace(l));
         CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], lo, hi, float(r.tnear),
                                                      float(r.tfar), r.start, &exact[l], float(r.tstop));
-        if (walk.begin()) live |= 1u << l;
+        if (walk.begin()) {
+          live |= 1u << l;
+          cellHits.emplace(l);
+        }
       }
       const uint32_t yes = traversePacket<AnyHit>(walks.data(), live, solver, cellHits.data(), stats);
       if constexpr (!AnyHit)

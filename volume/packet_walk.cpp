@@ -22,26 +22,21 @@ typedef int32_t I8 __attribute__((vector_size(32)));
 constexpr int W = kPacketLanes;
 constexpr float kEvalFactor = 32 * std::numeric_limits<float>::epsilon();  // evaluationError's
 
-inline F8 splat(float v) { return F8{v, v, v, v, v, v, v, v}; }
-inline I8 splat(int32_t v) { return I8{v, v, v, v, v, v, v, v}; }
-inline F8 fabs8(F8 x) { return (F8)((I8)x & splat(0x7fffffff)); }
-inline F8 copysign8(F8 magnitude, F8 sign) {
-  return (F8)(((I8)magnitude & splat(0x7fffffff)) | ((I8)sign & splat(int32_t(0x80000000u))));
-}
+// The helpers are macros: a function taking or returning a 32-byte vector by value changes the
+// ABI of the baseline clone (GCC warns, clang refuses), even when it is always inlined.
+// Arithmetic with a scalar operand broadcasts it to every lane.
+#define FABS8(x) ((F8)((I8)(x) & 0x7fffffff))
+#define COPYSIGN8(magnitude, sign) ((F8)(((I8)(magnitude) & 0x7fffffff) | ((I8)(sign) & int32_t(0x80000000u))))
 // std::max and std::min as the scalar code calls them: (a < b) ? b : a and (b < a) ? b : a.
-inline F8 max8(F8 a, F8 b) { return a < b ? b : a; }
-inline F8 min8(F8 a, F8 b) { return b < a ? b : a; }
-inline I8 inside8(F8 f) { return f > splat(0.f); }
-inline F8 cubic8(const F8 c[4], F8 s) { return ((c[3] * s + c[2]) * s + c[1]) * s + c[0]; }
-inline uint32_t bits8(I8 m) {
+#define MAX8(a, b) ((a) < (b) ? (b) : (a))
+#define MIN8(a, b) ((b) < (a) ? (b) : (a))
+#define INSIDE8(f) ((f) > 0.f)
+#define CUBIC8(c, s) ((((c)[3] * (s) + (c)[2]) * (s) + (c)[1]) * (s) + (c)[0])
+
+inline uint32_t bits8(const I8& m) {
   uint32_t r = 0;
   for (int l = 0; l < W; ++l) r |= uint32_t(m[l] != 0) << l;
   return r;
-}
-inline I8 maskOf(uint32_t bits) {
-  I8 m;
-  for (int l = 0; l < W; ++l) m[l] = (bits >> l & 1) ? -1 : 0;
-  return m;
 }
 
 // What the scalar isolate() makes of each lane's segment: the cubic, the knots k[0..n+1] (0,
@@ -90,34 +85,33 @@ inline void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lane
   L.c[3] = d[2] * D2;
   // isolate: the roots of the derivative c1 + 2 c2 s + 3 c3 s^2 inside (0, 1), as
   // quadraticRootsInUnit finds them (every candidate computed, the kept ones selected).
-  const F8 zero = splat(0.f), one = splat(1.f);
-  const F8 q0 = L.c[1], q1 = splat(2.f) * L.c[2], q2 = splat(3.f) * L.c[3];
-  const F8 disc = q1 * q1 - splat(4.f) * q2 * q0;
+  const F8 q0 = L.c[1], q1 = 2.f * L.c[2], q2 = 3.f * L.c[3];
+  const F8 disc = q1 * q1 - 4.f * q2 * q0;
   F8 root;
   for (int l = 0; l < W; ++l) root[l] = std::sqrt(disc[l] >= 0.f ? disc[l] : 0.f);
-  const F8 q = splat(-0.5f) * (q1 + copysign8(root, q1));
-  const I8 quadratic = q2 != zero;
-  const I8 real = disc >= zero;
+  const F8 q = -0.5f * (q1 + COPYSIGN8(root, q1));
+  const I8 quadratic = q2 != 0.f;
+  const I8 real = disc >= 0.f;
   // First candidate: -q0 / q1 (linear) or q / q2; second: q0 / q (quadratic, q != 0).
   const F8 r0 = quadratic ? q / q2 : -q0 / q1;
   const F8 r1 = q0 / q;
-  const I8 keep0 = (quadratic ? real : (q1 != zero)) & (r0 > zero) & (r0 < one);
-  const I8 keep1 = quadratic & real & (q != zero) & (r1 > zero) & (r1 < one);
+  const I8 keep0 = (quadratic ? real : (q1 != 0.f)) & (r0 > 0.f) & (r0 < 1.f);
+  const I8 keep1 = quadratic & real & (q != 0.f) & (r1 > 0.f) & (r1 < 1.f);
   const I8 swap = keep0 & keep1 & (r0 > r1);
   const F8 e0 = (keep0 & ~swap) ? r0 : r1;
   const F8 e1 = swap ? r0 : r1;
   L.n1 = keep0 | keep1;
   L.n2 = keep0 & keep1;
-  L.k[0] = zero;
+  L.k[0] = F8{};
   L.fk[0] = L.f0;
-  L.k[1] = L.n1 ? e0 : one;
-  L.fk[1] = L.n1 ? cubic8(L.c, e0) : L.f1;
-  L.k[2] = L.n2 ? e1 : one;
-  L.fk[2] = L.n2 ? cubic8(L.c, e1) : L.f1;
-  L.k[3] = one;
+  L.k[1] = L.n1 ? e0 : F8{} + 1.f;
+  L.fk[1] = L.n1 ? CUBIC8(L.c, e0) : L.f1;
+  L.k[2] = L.n2 ? e1 : F8{} + 1.f;
+  L.fk[2] = L.n2 ? CUBIC8(L.c, e1) : L.f1;
+  L.k[3] = F8{} + 1.f;
   L.fk[3] = L.f1;
-  F8 scale = zero;
-  for (int i = 0; i < 8; ++i) scale += fabs8(g[i]);
+  F8 scale = {};
+  for (int i = 0; i < 8; ++i) scale += FABS8(g[i]);
   L.scale = scale;
 }
 
@@ -126,9 +120,11 @@ uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, 
   Lanes L;
   prepare(segs, mask, L);
   // The first piece whose ends differ in class.
-  const I8 in0 = inside8(L.fk[0]), in1 = inside8(L.fk[1]), in2 = inside8(L.fk[2]), in3 = inside8(L.fk[3]);
+  const I8 in0 = INSIDE8(L.fk[0]), in1 = INSIDE8(L.fk[1]), in2 = INSIDE8(L.fk[2]), in3 = INSIDE8(L.fk[3]);
   const I8 c01 = in0 != in1, c12 = L.n1 & (in1 != in2), c23 = L.n2 & (in2 != in3);
-  I8 live = maskOf(mask) & (c01 | c12 | c23);
+  I8 lanes;
+  for (int l = 0; l < W; ++l) lanes[l] = (mask >> l & 1) ? -1 : 0;
+  I8 live = lanes & (c01 | c12 | c23);
   const uint32_t found = bits8(live);
   if (!found) return 0;
   F8 lo = c01 ? L.k[0] : c12 ? L.k[1] : L.k[2];
@@ -136,42 +132,41 @@ uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, 
   F8 flo = c01 ? L.fk[0] : c12 ? L.fk[1] : L.fk[2];
   F8 fhi = c01 ? L.fk[1] : c12 ? L.fk[2] : L.fk[3];
   // refineBracket: Illinois-modified regula falsi, lanes retiring as the scalar loop breaks.
-  const F8 half = splat(0.5f);
-  const F8 evalError = splat(kEvalFactor) * L.scale;
-  const I8 loInside = inside8(flo);
+  const F8 evalError = kEvalFactor * L.scale;
+  const I8 loInside = INSIDE8(flo);
   F8 loSafe = lo, hiSafe = hi;
-  I8 lastSide = splat(0);
+  I8 lastSide = {};
   for (int it = 0; it < iterations; ++it) {
     I8 on = live & (hi > lo);
     F8 s = lo + (hi - lo) * (flo / (flo - fhi));
-    s = ((s > lo) & (s < hi)) ? s : lo + half * (hi - lo);
+    s = ((s > lo) & (s < hi)) ? s : lo + 0.5f * (hi - lo);
     on &= (s > lo) & (s < hi);
     if (!bits8(on)) break;
-    const F8 fs = cubic8(L.c, s);
-    const I8 proven = fabs8(fs) > evalError;
-    const I8 toLo = inside8(fs) == loInside;
+    const F8 fs = CUBIC8(L.c, s);
+    const I8 proven = FABS8(fs) > evalError;
+    const I8 toLo = INSIDE8(fs) == loInside;
     const I8 moveLo = on & toLo, moveHi = on & ~toLo;
-    const F8 halfHi = lastSide == splat(-1) ? fhi * half : fhi;
-    const F8 halfLo = lastSide == splat(1) ? flo * half : flo;
+    const F8 halfHi = lastSide == -1 ? fhi * 0.5f : fhi;
+    const F8 halfLo = lastSide == 1 ? flo * 0.5f : flo;
     lo = moveLo ? s : lo;
     loSafe = (moveLo & proven) ? s : loSafe;
     hi = moveHi ? s : hi;
     hiSafe = (moveHi & proven) ? s : hiSafe;
     flo = moveLo ? fs : moveHi ? halfLo : flo;
     fhi = moveHi ? fs : moveLo ? halfHi : fhi;
-    lastSide = moveLo ? splat(-1) : moveHi ? splat(1) : lastSide;
+    lastSide = moveLo ? I8{} - 1 : moveHi ? I8{} + 1 : lastSide;
     live = on;
   }
   // The root and its bound (refineBracket's end, withEvaluationBound, refineWithBound).
   F8 s = lo + (hi - lo) * (flo / (flo - fhi));
-  s = ((s >= lo) & (s <= hi)) ? s : lo + half * (hi - lo);
-  const F8 proven = max8(s - loSafe, hiSafe - s);
-  const F8 bracket = max8(s - lo, hi - s);
-  const F8 slope = fabs8((splat(3.f) * L.c[3] * s + splat(2.f) * L.c[2]) * s + L.c[1]);
-  const F8 bound = splat(kEvalFactor) * L.scale / slope;
-  const F8 one = splat(1.f);
-  const F8 evaluation = (fabs8(bound) < splat(std::numeric_limits<float>::infinity())) ? min8(bound, one) : one;
-  const F8 error = min8(bracket + evaluation, max8(proven, bracket));
+  s = ((s >= lo) & (s <= hi)) ? s : lo + 0.5f * (hi - lo);
+  const F8 proven = MAX8(s - loSafe, hiSafe - s);
+  const F8 bracket = MAX8(s - lo, hi - s);
+  const F8 slope = FABS8((3.f * L.c[3] * s + 2.f * L.c[2]) * s + L.c[1]);
+  const F8 bound = kEvalFactor * L.scale / slope;
+  const F8 one = F8{} + 1.f;
+  const F8 evaluation = (FABS8(bound) < std::numeric_limits<float>::infinity()) ? MIN8(bound, one) : one;
+  const F8 error = MIN8(bracket + evaluation, MAX8(proven, bracket));
   for (int l = 0; l < W; ++l) {
     roots[l].s = s[l];
     roots[l].sError = error[l];
@@ -184,8 +179,8 @@ __attribute__((target_clones("avx2", "default")))
 uint32_t isolationAny(const CellSegment<float>* const segs[W], uint32_t mask) {
   Lanes L;
   prepare(segs, mask, L);
-  const I8 in0 = inside8(L.fk[0]);
-  const I8 yes = (in0 != inside8(L.f1)) | (L.n1 & (inside8(L.fk[1]) != in0)) | (L.n2 & (inside8(L.fk[2]) != in0));
+  const I8 in0 = INSIDE8(L.fk[0]);
+  const I8 yes = (in0 != INSIDE8(L.f1)) | (L.n1 & (INSIDE8(L.fk[1]) != in0)) | (L.n2 & (INSIDE8(L.fk[2]) != in0));
   return bits8(yes) & mask;
 }
 
