@@ -283,9 +283,9 @@ class SurfaceChecker {
   }
   // The packet's lanes did the same work: one lane's share.
   static void addOneLane(TraversalStats& to, const TraversalStats& packet) {
-    to.cellsVisited += packet.cellsVisited / World::kPacket;
-    to.cellsSolved += packet.cellsSolved / World::kPacket;
-    to.rootsRefined += packet.rootsRefined / World::kPacket;
+    TraversalStats share = packet;
+    share.forEach([](uint64_t& v) { v /= World::kPacket; });
+    to.add(share);
   }
 
   const World& m_world;

@@ -38,9 +38,7 @@ struct RayCounters {
   TraversalStats traversal;
   void add(const RayCounters& o) {
     camera += o.camera; shadow += o.shadow; indirect += o.indirect;
-    traversal.cellsVisited += o.traversal.cellsVisited;
-    traversal.cellsSolved += o.traversal.cellsSolved;
-    traversal.rootsRefined += o.traversal.rootsRefined;
+    traversal.add(o.traversal);
   }
 };
 

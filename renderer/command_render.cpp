@@ -152,14 +152,19 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
-               "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu}\n}\n",
+               "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu,\n"
+               "    \"Packet/BrickQueries\": %llu, \"Packet/Lanes\": %llu, \"Packet/LockstepSteps\": %llu,"
+               " \"Packet/SolveSteps\": %llu, \"Packet/SolveLanes\": %llu}\n}\n",
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
                jsonString(rayFlowName(s.rayFlow)).c_str(), s.maxDepth, frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
-               (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined);
+               (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined,
+               (unsigned long long)c.traversal.packetQueries, (unsigned long long)c.traversal.packetLanes,
+               (unsigned long long)c.traversal.lockstepSteps, (unsigned long long)c.traversal.solveSteps,
+               (unsigned long long)c.traversal.solveLanes);
   const bool ok = std::fclose(f) == 0;
   if (!ok || std::rename(temp.c_str(), path.c_str()) != 0) {
     std::remove(temp.c_str());

@@ -166,16 +166,18 @@ std::vector<char> receive(const MPI_Status& status) {
 void idle() { usleep(100); }
 
 void sendCounters(const RayCounters& mine, RayCounters& total, int root) {
-  uint64_t v[6] = {mine.camera, mine.shadow, mine.indirect, mine.traversal.cellsVisited,
-                   mine.traversal.cellsSolved, mine.traversal.rootsRefined};
-  uint64_t s[6] = {};
-  MPI_Reduce(v, s, 6, MPI_UINT64_T, MPI_SUM, root, MPI_COMM_WORLD);
+  constexpr int n = 3 + TraversalStats::kFields;
+  uint64_t v[n] = {mine.camera, mine.shadow, mine.indirect};
+  int i = 3;
+  TraversalStats traversal = mine.traversal;
+  traversal.forEach([&](uint64_t& value) { v[i++] = value; });
+  uint64_t s[n] = {};
+  MPI_Reduce(v, s, n, MPI_UINT64_T, MPI_SUM, root, MPI_COMM_WORLD);
   total.camera = s[0];
   total.shadow = s[1];
   total.indirect = s[2];
-  total.traversal.cellsVisited = s[3];
-  total.traversal.cellsSolved = s[4];
-  total.traversal.rootsRefined = s[5];
+  i = 3;
+  total.traversal.forEach([&](uint64_t& value) { value = s[i++]; });
 }
 
 }  // namespace

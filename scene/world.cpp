@@ -587,12 +587,6 @@ void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, 
   lane.start = startClassOf(ray);
 }
 
-void addStats(TraversalStats& to, const TraversalStats& from) {
-  to.cellsVisited += from.cellsVisited;
-  to.cellsSolved += from.cellsSolved;
-  to.rootsRefined += from.rootsRefined;
-}
-
 // Lane i of an Embree packet of width N as a single ray and hit (Embree's rtcGetRayHitFromRayHitN,
 // with the float fields only).
 RTCRayHit laneOf(const RTCRayHit8& packet, unsigned i) {
@@ -736,7 +730,7 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(m_scene, &context.embree, &rh);
-  addStats(stats, context.stats);
+  stats.add(context.stats);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   fillHit(ray, rh, lane, hit);
   return true;
@@ -773,7 +767,7 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
   if (!any) return;
   IsoRayContext context(lanes.data());
   rtcIntersect8(valid, m_scene, &context.embree, &packet);
-  addStats(stats, context.stats);
+  stats.add(context.stats);
   for (int i = 0; i < n; ++i) {
     if (!valid[i] || packet.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
     fillHit(start[i], laneOf(packet, unsigned(i)), lanes[i], hits[i]);
@@ -808,7 +802,7 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   if (!any) return;
   IsoRayContext context(lanes.data());
   rtcOccluded8(valid, m_scene, &context.embree, &packet);
-  addStats(stats, context.stats);
+  stats.add(context.stats);
   for (int i = 0; i < n; ++i)
     if (valid[i] && packet.tfar[i] < 0) blocked[i] = true;
 }
@@ -923,8 +917,7 @@ bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   setLane(ray, origin, m_surfaces, lane);
   RTCRay r = toEmbree(ray);
   rtcOccluded1(m_scene, &context.embree, &r);
-  stats.cellsVisited += context.stats.cellsVisited;
-  stats.cellsSolved += context.stats.cellsSolved;
+  stats.add(context.stats);
   return r.tfar < 0;
 }
 

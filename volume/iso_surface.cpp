@@ -172,6 +172,8 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
     }
     return found;
   }
+  ++stats.packetQueries;
+  stats.packetLanes += uint64_t(__builtin_popcount(mask));
   auto run = [&](const auto& solver) {
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       using Cells = std::decay_t<decltype(cells)>;

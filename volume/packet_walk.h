@@ -75,6 +75,7 @@ uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const Pack
   uint32_t found = 0;
   const CellSegment<float>* segs[kPacketLanes] = {};
   while (live) {
+    ++stats.lockstepSteps;
     uint32_t solve = 0;
     for (uint32_t rest = live; rest; rest &= rest - 1) {
       const int l = __builtin_ctz(rest);
@@ -93,6 +94,8 @@ uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const Pack
       }
     }
     if (solve) {
+      ++stats.solveSteps;
+      stats.solveLanes += uint64_t(__builtin_popcount(solve));
       if constexpr (AnyHit) {
         const uint32_t yes = solver.any(segs, solve);
         found |= yes;

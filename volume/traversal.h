@@ -60,6 +60,26 @@ struct TraversalStats {
   uint64_t cellsVisited = 0;  // cells the DDA stepped through
   uint64_t cellsSolved = 0;   // cells whose corners straddle the iso value
   uint64_t rootsRefined = 0;  // crossings located (closest-hit queries only)
+  // Packet queries (volume/packet_walk.h): brick queries of a packet, their lanes, lockstep
+  // steps, and the steps with cells to solve and how many lanes solved in them: how full the
+  // lanes the vector code works on are.
+  uint64_t packetQueries = 0, packetLanes = 0, lockstepSteps = 0, solveSteps = 0, solveLanes = 0;
+  // Every counter, in order (to sum or send them all).
+  static constexpr int kFields = 8;
+  template <typename F>
+  void forEach(F&& f) {
+    for (uint64_t* v : {&cellsVisited, &cellsSolved, &rootsRefined, &packetQueries, &packetLanes, &lockstepSteps,
+                        &solveSteps, &solveLanes})
+      f(*v);
+  }
+  void add(const TraversalStats& o) {
+    TraversalStats copy = o;
+    int i = 0;
+    uint64_t values[kFields];
+    copy.forEach([&](uint64_t& v) { values[i++] = v; });
+    i = 0;
+    forEach([&](uint64_t& v) { v += values[i++]; });
+  }
 };
 
 template <typename Real>
