@@ -21,14 +21,6 @@ struct SurfaceHit {
   bool insideAfter = false;  // the class (value > iso) just past the hit, along the ray
 };
 
-// Embree carries no per-hit error bound, so rays are traced with this extended context
-// (Embree's documented pattern for passing data to callbacks); the accepted hit writes it.
-// `origin`, when set, is the ray's origin in double (world space): rays spawned from an
-// iso-surface hit far from the world origin keep the precision a float origin would lose
-// (at 1e5 a float is exact to 1/128 only), and the iso-surface queries start from it, mapped
-// to object space in double (Embree's float instance transform would round it again).
-// `startSurface` and `start`: a ray spawned from a hit on that surface starts in the class
-// `start` there (see StartClass in volume/traversal.h).
 class IsoSurface;
 // The ray of one Embree query in a surface's grid coordinates: the same for every brick of that
 // surface the query visits (its origin, direction, tnear and start class do not change), so it
@@ -40,17 +32,22 @@ struct GridRayCache {
 };
 // What the iso-surface callbacks know of one ray of a query, and what they write back: lane i
 // of a packet traced by rtcIntersect8 / rtcOccluded8 (World::intersectPacket), or the one ray
-// of rtcIntersect1.
+// of rtcIntersect1. Embree carries no per-hit error bound, so rays are traced with an extended
+// context (Embree's documented pattern for passing data to callbacks) holding these lanes.
 struct IsoRayLane {
-  // The ray in world space, in double (set by World for every ray it traces): queries map it
-  // to object space themselves, so that they do not depend on how Embree transformed the ray
-  // into an instance (its packet and single-ray kernels round that differently).
+  // The ray in world space, in double (set by World for every ray it traces): rays spawned from
+  // an iso-surface hit far from the world origin keep the precision a float origin would lose
+  // (at 1e5 a float is exact to 1/128 only); queries map it to object space themselves, in
+  // double, so that they depend neither on Embree's float instance transform nor on how its
+  // packet and single-ray kernels round it.
   const Vec3d* origin = nullptr;
   Vec3d direction;
-  // The ray's far end as traced. Every brick is walked up to it, not up to the closest hit found
+  // The ray's far end as traced. Every brick's cells are cut at it, not at the closest hit found
   // so far, so that a hit (its t, its error bound, its normal) does not depend on the order in
   // which Embree visits bricks and triangles, which differs between packets and single rays.
   float tfar = INFINITY;
+  // A ray spawned from a hit on `startSurface` starts in the class `start` there (StartClass in
+  // volume/traversal.h).
   const IsoSurface* startSurface = nullptr;
   StartClass start = StartClass::Unknown;
   double t = 0;       // the accepted iso-surface hit, in double
