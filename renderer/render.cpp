@@ -77,11 +77,10 @@ namespace {
   ++p.samples;
 }
 
-// The paths of one tile's pass, reused from pass to pass by each thread: at most
-// kTile^2 pixels x 16 samples (the largest pass) = 4,096 paths of 304 bytes, 1.2 MiB, whatever the image size.
+// The paths of one tile's pass, reused from pass to pass by each thread: at most kTile^2 pixels
+// x 16 samples (the largest pass) = 4,096 paths of 304 bytes, 1.2 MiB, whatever the image size.
 struct Wavefront {
   std::vector<PathState> paths;
-  std::vector<int> queue;
   std::vector<std::pair<int, int>> pixels;  // the open pixels (x, y)
 };
 thread_local Wavefront t_wavefront;
@@ -170,7 +169,7 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
 
   // Then shadow rays and continuation rays, stage by stage, until every path is done. These
   // are incoherent (bounces, lights sampled anywhere), and Embree's packets lose on them: traced
-  // one at a time they render faster (docs/BENCHMARKS.md, "Wavefront"), so they are.
+  // one at a time they render faster (docs/BENCHMARKS.md, "Rays in queues, traced in packets").
   for (;;) {
     bool more = false;
     for (size_t i = 0; i < count; ++i) {
