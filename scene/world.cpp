@@ -736,75 +736,58 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   return true;
 }
 
+// What intersect() and occluded() do before Embree, for each ray of a packet: a ray leaving an
+// iso-surface starts on its volume's box, and may cross at once where its start cell is seen by
+// no brick query (done[i], with hits[i] filled if `hits` is given); every other ray becomes a
+// valid lane of `packet` with its iso-surface data. False if no ray is left for Embree.
+bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
+                     RTCRay8& packet) const {
+  if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket/occludedPacket: 1 to 8 rays");
+  for (int i = 0; i < kPacket; ++i) {
+    p.valid[i] = 0;
+    packet.tnear[i] = 0;
+    packet.tfar[i] = -INFINITY;
+  }
+  bool any = false;
+  for (int i = 0; i < n; ++i) {
+    const Ray& start = p.start.emplace(i, startInsideVolume(rays[i]));
+    done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
+    if (done[i]) continue;
+    setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
+    packLane(start, i, packet);
+    p.valid[i] = -1;
+    any = true;
+  }
+  return any;
+}
+
 void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const {
-  if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket: 1 to 8 rays");
-  LaneSlots<Ray> start;
-  LaneSlots<Vec3d> origin;
-  LaneSlots<IsoRayLane> lanes;
-  alignas(32) int valid[kPacket] = {};
+  PacketLanes p;
   alignas(32) RTCRayHit8 packet;
   for (int i = 0; i < kPacket; ++i) {
     packet.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
     packet.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
-    packet.ray.tnear[i] = 0;
-    packet.ray.tfar[i] = -INFINITY;
   }
-  bool any = false;
-  for (int i = 0; i < n; ++i) {
-    found[i] = false;
-    // What intersect() does before Embree: a ray leaving an iso-surface starts on its volume's
-    // box, and may cross at once where its start cell is seen by no brick query.
-    start.emplace(i, startInsideVolume(rays[i]));
-    if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], &hits[i], stats)) {
-      found[i] = true;
-      continue;
-    }
-    setLane(start[i], origin.emplace(i, start[i].origin()), m_surfaces, lanes.emplace(i));
-    packLane(start[i], i, packet.ray);
-    valid[i] = -1;
-    any = true;
-  }
-  if (!any) return;
-  IsoRayContext context(lanes.data());
-  rtcIntersect8(valid, m_scene, &context.embree, &packet);
+  if (!packRays(rays, n, hits, found, stats, p, packet.ray)) return;
+  IsoRayContext context(p.lanes.data());
+  rtcIntersect8(p.valid, m_scene, &context.embree, &packet);
   stats.add(context.stats);
   for (int i = 0; i < n; ++i) {
-    if (!valid[i] || packet.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
-    fillHit(start[i], laneOf(packet, unsigned(i)), lanes[i], hits[i]);
+    if (!p.valid[i] || packet.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
+    fillHit(p.start[i], laneOf(packet, unsigned(i)), p.lanes[i], hits[i]);
     found[i] = true;
   }
 }
 
 void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const {
-  if (n < 1 || n > kPacket) throw std::logic_error("World::occludedPacket: 1 to 8 rays");
-  LaneSlots<Ray> start;
-  LaneSlots<Vec3d> origin;
-  LaneSlots<IsoRayLane> lanes;
-  alignas(32) int valid[kPacket] = {};
+  PacketLanes p;
   alignas(32) RTCRay8 packet;
-  for (int i = 0; i < kPacket; ++i) {
-    packet.tnear[i] = 0;
-    packet.tfar[i] = 0;
-  }
-  bool any = false;
-  for (int i = 0; i < n; ++i) {
-    blocked[i] = false;
-    start.emplace(i, startInsideVolume(rays[i]));
-    if (rays[i].fromSurface >= 0 && crossesAtInactiveStart(start[i], nullptr, stats)) {
-      blocked[i] = true;
-      continue;
-    }
-    setLane(start[i], origin.emplace(i, start[i].origin()), m_surfaces, lanes.emplace(i));
-    packLane(start[i], i, packet);
-    valid[i] = -1;
-    any = true;
-  }
-  if (!any) return;
-  IsoRayContext context(lanes.data());
-  rtcOccluded8(valid, m_scene, &context.embree, &packet);
+  if (!packRays(rays, n, nullptr, blocked, stats, p, packet)) return;
+  IsoRayContext context(p.lanes.data());
+  rtcOccluded8(p.valid, m_scene, &context.embree, &packet);
   stats.add(context.stats);
   for (int i = 0; i < n; ++i)
-    if (valid[i] && packet.tfar[i] < 0) blocked[i] = true;
+    if (p.valid[i] && packet.tfar[i] < 0) blocked[i] = true;
 }
 
 // The hit Embree found for `ray` (in `rh`), with the lane's iso-surface result.

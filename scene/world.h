@@ -156,6 +156,15 @@ class World {
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
   void fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const;
+  // The lanes of a packet being traced (World::packRays fills the rays Embree is to see).
+  struct PacketLanes {
+    LaneSlots<Ray> start;  // each ray as traced (moved onto its volume's box)
+    LaneSlots<Vec3d> origin;
+    LaneSlots<IsoRayLane> lanes;
+    alignas(32) int valid[kPacket];
+  };
+  bool packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
+                RTCRay8& packet) const;
   void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter,
                   const Transform* toWorld, Hit& hit) const;
   bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;
