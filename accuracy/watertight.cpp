@@ -67,6 +67,15 @@ class SurfaceChecker {
   }
   Vec3d toWorldPoint(const Vec3d& grid) const { return m_toWorld.point(grid * m_grid.spacing() + m_grid.origin()); }
   bool inside(const Vec3d& grid) const { return m_grid.interpolate(grid) > m_iso; }
+  // The class at a test's end point, and whether it has one: a point on the surface (the field
+  // within 1e-12 of the iso value, exactly on it with integer data) has none. The walk gives an
+  // exact zero the class the ray approaches it from (CellWalk), the field alone says outside:
+  // a test ending there compares only what does not depend on that convention.
+  bool classAt(const Vec3d& grid, bool& defined) const {
+    const double v = m_grid.interpolate(grid);
+    defined = std::fabs(v - m_iso) > 1e-12 * (std::fabs(m_iso) + std::fabs(v));
+    return v > m_iso;
+  }
 
   // Crossings of the line o + t d, t in [t0, t1] (world space), by the reference intersector
   // in double, restarting just past each root; their t in `ts` if given.
@@ -208,13 +217,11 @@ class SurfaceChecker {
       const bool leaves = exitPoint(last, hits > 0, exit);
       // (The ray's extent in the box begins at its origin where rounding the origin to float
       // put it inside the box: a line that grazes a face, entered just behind the origin.)
-      const double v0 = m_grid.interpolate(toGrid(o + d * std::max(t0, 0.0))), v1 = leaves ? m_grid.interpolate(exit) : m_iso;
-      r.startInside = v0 > m_iso;
-      r.endInside = v1 > m_iso;
       // An end exactly on the surface has no class: parity is undefined for that ray.
-      const double tie = 1e-12 * (std::fabs(m_iso) + std::fabs(v0) + std::fabs(v1));
-      const bool defined = std::fabs(v0 - m_iso) > tie && std::fabs(v1 - m_iso) > tie;
-      if (defined && (hits % 2 == 1) != (r.startInside != r.endInside)) {
+      bool startDefined, endDefined = false;
+      r.startInside = classAt(toGrid(o + d * std::max(t0, 0.0)), startDefined);
+      r.endInside = leaves && classAt(exit, endDefined);
+      if (startDefined && endDefined && (hits % 2 == 1) != (r.startInside != r.endInside)) {
         ++c.parityErrors;
         r.what = "parity error (a hole)";
         // Which way it went wrong: a root counted twice, or one missed (a hole).
@@ -229,12 +236,13 @@ class SurfaceChecker {
       // The class where the ray's extent in the box begins: its origin, or where it enters the
       // box if the origin (a random point in the box, rounded to float far from the origin)
       // lies just outside it. The field has no class outside the box.
-      r.startInside = inside(toGrid(o + d * std::max(t0, 0.0)));
-      r.endInside = inside(toGrid(o + d * t1));
+      bool startDefined, endDefined;
+      r.startInside = classAt(toGrid(o + d * std::max(t0, 0.0)), startDefined);
+      r.endInside = classAt(toGrid(o + d * t1), endDefined);
       Hit hit;
       const bool found = intersect(ray, hit, stats);
       if (keep && found) r.hits.push_back(hit.t);
-      if (r.startInside != r.endInside && !found) {
+      if (startDefined && endDefined && r.startInside != r.endInside && !found) {
         ++c.insideEscapes;
         r.what = "inside escape (no hit where the class changes)";
       }
@@ -247,9 +255,12 @@ class SurfaceChecker {
       // rounding to float put them just outside); a segment that misses the box has none.
       double t0, t1;
       const bool meets = clipToBox(toGrid(o), toGrid(o + d) - toGrid(o), m_hi, t0, t1) && t0 <= 1 && t1 >= 0;
-      r.startInside = meets && inside(toGrid(o + d * std::max(t0, 0.0)));
-      r.endInside = meets && inside(toGrid(o + d * std::min(t1, 1.0)));
-      if (r.occluded != (hits > 0 || r.startInside != r.endInside)) {
+      bool startDefined = true, endDefined = true;
+      r.startInside = meets && classAt(toGrid(o + d * std::max(t0, 0.0)), startDefined);
+      r.endInside = meets && classAt(toGrid(o + d * std::min(t1, 1.0)), endDefined);
+      // (An end on the surface: only hits say whether the segment crosses.)
+      const bool classesDiffer = startDefined && endDefined && r.startInside != r.endInside;
+      if (r.occluded != (hits > 0 || classesDiffer)) {
         ++c.shadowMismatches;
         r.what = r.occluded ? "shadow mismatch (occluded, but no crossing traced)" : "shadow mismatch (not occluded, but crossings traced)";
       }

@@ -151,19 +151,31 @@ TEST(WatertightDump, FailuresReplayAloneToTheSameOutcome) {
     EXPECT_EQ(r.what, "") << testName(r.test) << " ray " << r.index;
 }
 
-// The failing rays of 1e7-ray hunts on rough float32 fields at 1e5 (tests/data/exactness, its
-// README says how each failed): replayed alone, every one passes now.
+// The failing rays of hunts (tests/data/exactness, its README says how each failed): 1e7 rays
+// on rough float32 fields at 1e5, and 1e6 rays on the real volumes. Replayed alone, in both ray
+// flows, every one passes now.
 TEST(WatertightDump, TheHuntedFailuresPass) {
   const std::string dir = std::string(ISOTRACE_SOURCE_DIR) + "/tests/data/exactness";
-  for (const auto& [field, count] : std::vector<std::pair<std::string, size_t>>{{"rough_2", 8}, {"rough_3", 2}}) {
-    const SceneDesc scene = parseSceneFile(dir + "/" + field + ".json");
-    const FailureFile file = readFailures(dir + "/" + field + ".failures.txt");
-    ASSERT_EQ(file.rays.size(), count) << field;
+  struct Hunt {
+    std::string scene, failures;
+    size_t count;
+  };
+  for (const Hunt& hunt : std::vector<Hunt>{{"rough_1", "rough_1", 1},
+                                            {"rough_2", "rough_2", 8},
+                                            {"rough_2", "rough_2_5b406aa", 2},
+                                            {"rough_3", "rough_3", 2},
+                                            {"real_volumes", "real_example4d", 1},
+                                            {"real_volumes", "real_hydrogen_1e5", 1}}) {
+    const SceneDesc scene = parseSceneFile(dir + "/" + hunt.scene + ".json");
+    const FailureFile file = readFailures(dir + "/" + hunt.failures + ".failures.txt");
+    ASSERT_EQ(file.rays.size(), hunt.count) << hunt.failures;
     IntersectorSpec spec;
     std::string error;
     ASSERT_TRUE(parseIntersector(file.intersector, spec, error)) << error;
-    for (const FailedRay& r : replayFailures(scene, spec, file.offset, file.rayFlow, file.rays))
-      EXPECT_EQ(r.what, "") << field << ": " << testName(r.test) << " ray " << r.index << " of iso-surface " << r.surface;
+    for (RayFlow flow : {RayFlow::Scalar, RayFlow::Wavefront})
+      for (const FailedRay& r : replayFailures(scene, spec, file.offset, flow, file.rays))
+        EXPECT_EQ(r.what, "") << hunt.failures << " (" << rayFlowName(flow) << "): " << testName(r.test) << " ray "
+                              << r.index << " of iso-surface " << r.surface;
   }
 }
 

@@ -123,6 +123,7 @@ void IsoSurface::surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, co
   hit.tError = double(cellHit.tError);
   hit.tangent = cellHit.tangent;
   hit.insideAfter = cellHit.insideAfter;
+  hit.segmentStart = double(cellHit.segmentStart);
 }
 
 template <bool AnyHit>
@@ -396,6 +397,12 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     float& tfar = RTCRayN_tfar(rays, N, i);
     const float t = float(hit.t);
     if (!(t >= RTCRayN_tnear(rays, N, i) && t <= tfar)) continue;
+    IsoRayLane& lane = context->lanes[i];
+    // A tie in float t (a close pair of crossings on both sides of a brick seam, each brick
+    // reporting one at the seam): the hit of the cell first along the ray wins, whatever order
+    // Embree visits the bricks in. Keeping the later one carried the wrong class past the pair
+    // (a parity error at 1e6 rays, tests/data/exactness/real_example4d.failures.txt).
+    if (t == tfar && !(hit.segmentStart < lane.segmentStart)) continue;
     tfar = t;
     RTCHitN_Ng_x(hits, N, i) = hit.normal.x;
     RTCHitN_Ng_y(hits, N, i) = hit.normal.y;
@@ -407,10 +414,10 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     for (unsigned l = 0; l < RTC_MAX_INSTANCE_LEVEL_COUNT; ++l)
       RTCHitN_instID(hits, N, i, l) = args->context->instID[l];
     // float(t) rounds; the bound must cover that too. The double t keeps the precise hit.
-    IsoRayLane& lane = context->lanes[i];
     lane.tError = float(hit.tError + std::fabs(hit.t - double(t))) * (1 + 1e-6f);
     lane.t = hit.t;
     lane.insideAfter = hit.insideAfter;
+    lane.segmentStart = hit.segmentStart;
   }
 }
 

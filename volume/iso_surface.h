@@ -19,6 +19,9 @@ struct SurfaceHit {
   Vec3f normal;        // world space, unit, pointing to lower values (out of "inside")
   bool tangent = false;
   bool insideAfter = false;  // the class (value > iso) just past the hit, along the ray
+  // Where the hit's cell segment begins (t along the ray): of two hits at the same float t
+  // (a close pair on both sides of a brick seam), the one from the earlier cell comes first.
+  double segmentStart = 0;
 };
 
 class IsoSurface;
@@ -53,6 +56,10 @@ struct IsoRayLane {
   double t = 0;       // the accepted iso-surface hit, in double
   float tError = 0;
   bool insideAfter = false;
+  // Where the accepted hit's cell segment begins: bricks are visited in Embree's order, and of
+  // two hits at the same float t the one of the cell first along the ray is kept (see
+  // SurfaceHit::segmentStart). None yet: infinity.
+  double segmentStart = INFINITY;
   GridRayCache gridRay;
 };
 struct IsoRayContext {

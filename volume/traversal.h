@@ -94,6 +94,7 @@ struct CellHit {
   Vec3<Real> local;   // cell-local hit coordinates
   bool tangent = false;
   bool insideAfter = false;  // the class (value > iso) the ray is in just past the hit
+  Real segmentStart = 0;     // t where the hit's cell segment begins
 };
 
 // The class a query starts in when the caller knows it. A ray that continues from a hit on
@@ -423,6 +424,7 @@ class CellWalk {
   ISO_INLINE void startHit(CellHit<Real>& hit, TraversalStats& stats) const {
     ++stats.rootsRefined;
     hit.t = m_ta;
+    hit.segmentStart = m_ta;
     hit.tError = roundingOfT(m_ta, Real(0));
     hit.cell = m_cell;
     hit.local = localAt(m_ta, -1, Real(0));
@@ -434,7 +436,11 @@ class CellWalk {
   ISO_INLINE void hitAt(const Root<Real>& root, CellHit<Real>& hit, TraversalStats& stats) const {
     ++stats.rootsRefined;
     const Real len = m_tb - m_ta;
-    hit.t = m_ta + root.s * len;
+    // Never past the segment's end (ta + 1 * len can round above tb): a crossing at the end of
+    // a brick's last cell then ties with, and is ordered before, one at the start of the next
+    // brick (SurfaceHit::segmentStart).
+    hit.t = std::min(m_ta + root.s * len, m_tb);
+    hit.segmentStart = m_ta;
     hit.tError = root.sError * len + roundingOfT(hit.t, len);
     hit.cell = m_cell;
     hit.local = m_seg.a + (m_seg.b - m_seg.a) * root.s;
