@@ -94,19 +94,14 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
 }
 
 void IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
-                               GridRayCache* cache, GridRay<float>& ray, ExactEnds& exact) const {
+                               GridRayCache& cache) const {
+  if (cache.surface == this) return;
   // The float ray is the double one rounded (what queryRay<float> gives); the double one
   // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
-  GridRay<double> ray64;
-  if (cache && cache->surface == this) {
-    ray = cache->ray;
-    ray64 = cache->ray64;
-  } else {
-    ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
-    ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
-    if (cache) *cache = {this, ray, ray64};
-  }
-  exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
+  const GridRay<double> ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
+  cache.surface = this;
+  cache.ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
+  cache.exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
 }
 
 template <typename Real, typename Cells>
@@ -135,16 +130,19 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
-      GridRay<Real> ray;
-      ExactEnds exact;
-      if constexpr (std::is_same_v<Real, float>)
-        floatQueryRay(org, dir, tnear, tfar, start, cache, ray, exact);
-      else
-        ray = queryRay<Real>(m_grid, org, dir, tnear, start);
       CellHit<Real> cellHit;
-      if (!traverseCells<AnyHit>(cells, Real(m_iso), ray, lo, hi, Real(tnear), Real(tfar), solver,
-                                 cellHit, stats, start, std::is_same_v<Real, float> ? &exact : nullptr, Real(tstop)))
-        return false;
+      if constexpr (std::is_same_v<Real, float>) {
+        GridRayCache local;
+        GridRayCache& c = cache ? *cache : local;
+        floatQueryRay(org, dir, tnear, tfar, start, c);
+        if (!traverseCells<AnyHit>(cells, float(m_iso), c.ray, lo, hi, float(tnear), float(tfar), solver, cellHit,
+                                   stats, start, &c.exact, float(tstop)))
+          return false;
+      } else {
+        const GridRay<double> ray = queryRay<double>(m_grid, org, dir, tnear, start);
+        if (!traverseCells<AnyHit>(cells, m_iso, ray, lo, hi, tnear, tfar, solver, cellHit, stats, start, nullptr, tstop))
+          return false;
+      }
       if constexpr (!AnyHit) surfaceHit(cells, cellHit, dir, *hit);
       return true;
     });
@@ -178,17 +176,17 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
   auto run = [&](const auto& solver) {
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       using Cells = std::decay_t<decltype(cells)>;
-      LaneSlots<GridRay<float>> rays;
-      LaneSlots<ExactEnds> exact;
+      LaneSlots<GridRayCache> local;  // for lanes without a cache of their own
       LaneSlots<CellWalk<float, Cells>> walks;
       LaneSlots<CellHit<float>> cellHits;
       uint32_t live = 0;
       for (uint32_t rest = mask; rest; rest &= rest - 1) {
         const int l = __builtin_ctz(rest);
         const PacketLane& r = lanes[l];
-        floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, r.cache, rays.emplace(l), exact.emplace(l));
-        CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), rays[l], lo, hi, float(r.tnear),
-                                                     float(r.tfar), r.start, &exact[l], float(r.tstop));
+        GridRayCache& c = r.cache ? *r.cache : local.emplace(l);
+        floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, c);
+        CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), c.ray, lo, hi, float(r.tnear),
+                                                     float(r.tfar), r.start, &c.exact, float(r.tstop));
         if (walk.begin()) {
           live |= 1u << l;
           cellHits.emplace(l);

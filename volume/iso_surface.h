@@ -26,12 +26,12 @@ struct SurfaceHit {
 
 class IsoSurface;
 // The ray of one Embree query in a surface's grid coordinates: the same for every brick of that
-// surface the query visits (its origin, direction, tnear and start class do not change), so it
-// is computed once per ray instead of once per brick.
+// surface the query visits (its origin, direction, extent and start class do not change), so it
+// is computed once per ray instead of once per brick, and the brick walks read it in place.
 struct GridRayCache {
-  const IsoSurface* surface = nullptr;
-  GridRay<float> ray;
-  GridRay<double> ray64;  // the same ray in double: the float traversal's exact ends
+  const IsoSurface* surface = nullptr;  // the surface whose grid the rest is in; none yet: null
+  GridRay<float> ray;                   // what the float traversal walks
+  ExactEnds exact;  // the same ray in double with its extent: the float traversal's exact ends
 };
 // What the iso-surface callbacks know of one ray of a query, and what they write back: lane i
 // of a packet traced by rtcIntersect8 / rtcOccluded8 (World::intersectPacket), or the one ray
@@ -150,9 +150,9 @@ class IsoSurface {
   template <bool AnyHit>
   uint32_t packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const PacketLane* lanes,
                        uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const;
-  // The float grid ray of a query and the double one's ends (from `cache` when it holds them).
+  // The float grid ray of a query and the double one's ends, in `cache` (unless it holds them).
   void floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
-                     GridRayCache* cache, GridRay<float>& ray, ExactEnds& exact) const;
+                     GridRayCache& cache) const;
   // A cell hit as a world-space SurfaceHit (the normal from the cell's gradient).
   template <typename Real, typename Cells>
   void surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, const Vec3d& dir, SurfaceHit& hit) const;
