@@ -22,6 +22,17 @@
 
 namespace iso {
 
+void addSceneOverrides(CLI::App* cmd, SceneOverrides& overrides) {
+  cmd->add_option("--set", overrides.set,
+                  "POINTER=VALUE: change the scene's JSON at a JSON pointer, e.g. /camera/fov=30 or "
+                  "/volumes/0/isosurfaces/1/value=300 (repeatable; a bare word is a string)")
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+  cmd->add_option("--iso", overrides.iso, "S=V: set iso-surface S (counted over all volumes from 0) to V (repeatable)")
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+}
+
 void parseResolution(const std::string& text, int& width, int& height) {
   std::smatch m;
   static const std::regex wxh(R"((\d{1,5})x(\d{1,5}))");

@@ -13,7 +13,7 @@ namespace iso {
 namespace {
 
 int bench(const CheckFlags& flags) {
-  const SceneDesc scene = parseSceneFile(flags.scene);
+  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
   std::vector<IntersectorSpec> specs;
   const std::string list = flags.intersector.empty()
                                ? "linear,neubauer:1,neubauer:2,neubauer:3,neubauer:5,neubauer:8,schwarze,"
@@ -84,6 +84,7 @@ Command addBenchCommand(CLI::App& app) {
   cmd->add_option("--seed", f.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
   cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: the rays walked 8 at a time, the packet walk) or scalar");
   cmd->add_option("--json", f.json, "write the results as JSON");
+  addSceneOverrides(cmd, f.overrides);
   return {cmd, [flags] { return bench(*flags); }};
 }
 

@@ -35,8 +35,8 @@ const char* lightKindName(Light::Kind k) {
   return "?";
 }
 
-int info(const std::string& path) {
-  const SceneDesc scene = parseSceneFile(path);
+int info(const std::string& path, const SceneOverrides& overrides) {
+  const SceneDesc scene = parseSceneFile(path, overrides);
   World world(scene, scene.settings.intersector);
   for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
   const RenderSettings& s = scene.settings;
@@ -115,10 +115,15 @@ int info(const std::string& path) {
 }  // namespace
 
 Command addInfoCommand(CLI::App& app) {
-  auto scene = std::make_shared<std::string>();
+  struct Flags {
+    std::string scene;
+    SceneOverrides overrides;
+  };
+  auto flags = std::make_shared<Flags>();
   CLI::App* cmd = app.add_subcommand("info", "what the scene holds and what will be built");
-  cmd->add_option("scene", *scene, "scene file (JSON)")->required();
-  return {cmd, [scene] { return info(*scene); }};
+  cmd->add_option("scene", flags->scene, "scene file (JSON)")->required();
+  addSceneOverrides(cmd, flags->overrides);
+  return {cmd, [flags] { return info(flags->scene, flags->overrides); }};
 }
 
 }  // namespace iso

@@ -17,11 +17,12 @@ namespace {
 struct MeshFlags {
   std::string scene, output;
   int volume = 0, surface = 0;
+  SceneOverrides overrides;
 };
 
 // `isotrace mesh`: one iso-surface as triangles in world space, with the surface's material.
 int exportMesh(const MeshFlags& flags) {
-  const SceneDesc scene = parseSceneFile(flags.scene);
+  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
   if (flags.output.empty()) throw InputError("-o", "", "an output file is needed (-o NAME.glb or NAME.gltf)");
   const std::string ext = std::filesystem::path(flags.output).extension().string();
   if (ext != ".glb" && ext != ".gltf") throw InputError(flags.output, "", "the mesh output must be .glb or .gltf");
@@ -91,6 +92,7 @@ Command addMeshCommand(CLI::App& app) {
   cmd->add_option("-o,--output", f.output, "output mesh, .glb or .gltf")->required();
   cmd->add_option("--volume", f.volume, "volume index in the scene, from 0 (default 0)");
   cmd->add_option("--surface", f.surface, "iso-surface index in that volume, from 0 (default 0)");
+  addSceneOverrides(cmd, f.overrides);
   return {cmd, [flags] { return exportMesh(*flags); }};
 }
 

@@ -31,6 +31,7 @@ struct RenderFlags {
   long long seed = -1;
   bool quiet = false, alpha = false, allowLarge = false;
   std::optional<double> exposure, clamp, adaptive;
+  SceneOverrides overrides;
 };
 
 // --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
@@ -141,6 +142,9 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
   const RenderSettings& s = scene.settings;
   const RayCounters& c = r.counters;
   const uint64_t rays = c.camera + c.shadow + c.indirect;
+  std::string overrides = "[";
+  for (const std::string& o : scene.overrides) overrides += (overrides.size() > 1 ? ", " : "") + jsonString(o);
+  overrides += "]";
   const std::string temp = temporaryBeside(path);
   FILE* f = std::fopen(temp.c_str(), "w");
   if (!f) throw InputError(path, "", "cannot write statistics");
@@ -148,7 +152,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n  \"ray_flow\": %s,\n"
-               "  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
+               "  \"overrides\": %s,\n  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
@@ -158,7 +162,7 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
-               jsonString(rayFlowName(s.rayFlow)).c_str(), s.maxDepth, frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined,
@@ -257,7 +261,7 @@ struct RenderSetup {
 
 RenderSetup prepareRender(const RenderFlags& flags) {
   RenderSetup r;
-  r.scene = parseSceneFile(flags.scene);
+  r.scene = parseSceneFile(flags.scene, flags.overrides);
   applyFlags(flags, r.scene);
   r.seq = frameSequence(flags, r.scene);
   r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
@@ -344,6 +348,11 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
     }
     if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
+    if (!scene.overrides.empty()) {  // --iso / --set, as applied: one POINTER=VALUE per line
+      std::string text;
+      for (const std::string& o : scene.overrides) text += (text.empty() ? "" : "\n") + o;
+      metadata["isotrace:overrides"] = text;
+    }
     if (result.interrupted) metadata["isotrace:interrupted"] = "1";
     if (seq.frames > 1) {
       metadata["isotrace:frame"] = std::to_string(frame) + "/" + std::to_string(seq.frames);
@@ -538,6 +547,7 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep and/or --orbit)")
       ->check(CLI::Range(1, 100000));
   cmd->add_option("--iso-sweep", f.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
+  addSceneOverrides(cmd, f.overrides);
   cmd->add_option("--orbit", f.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");
   return {cmd, [flags] { return render(*flags); }};
 }

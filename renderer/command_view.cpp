@@ -21,6 +21,7 @@ Command addViewCommand(CLI::App& app) {
   cmd->add_option("--host", flags->options.host, "address to listen on (default 127.0.0.1: this machine only)");
   cmd->add_option("--resolution", flags->resolution, "image size WIDTHxHEIGHT (default 480 wide, the scene's aspect)");
   cmd->add_option("--threads", flags->options.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
+  addSceneOverrides(cmd, flags->options.overrides);
   return {cmd, [flags] {
             ViewOptions options = flags->options;
             if (!flags->resolution.empty()) {

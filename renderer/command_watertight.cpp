@@ -45,7 +45,7 @@ int replay(const CheckFlags& flags) {
                                     {!flags.rayFlow.empty(), "--ray-flow"}})
     if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector, ray flow and offset");
   const FailureFile file = readFailures(flags.replay);
-  const SceneDesc scene = parseSceneFile(flags.scene);
+  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
   IntersectorSpec spec;
   std::string error;
   if (!parseIntersector(file.intersector, spec, error)) throw InputError(flags.replay, "line 1", "intersector: " + error);
@@ -75,7 +75,7 @@ int replay(const CheckFlags& flags) {
 
 int watertight(const CheckFlags& flags) {
   if (!flags.replay.empty()) return replay(flags);
-  SceneDesc scene = parseSceneFile(flags.scene);
+  SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
   IntersectorSpec spec = scene.settings.intersector;
   if (!flags.intersector.empty()) {
     std::string error;
@@ -165,6 +165,7 @@ Command addWatertightCommand(CLI::App& app) {
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--json", f.json, "write the counts as JSON");
   cmd->add_option("--dump", f.dump, "write every failing ray (exact, in hexadecimal) to FILE, to replay alone");
+  addSceneOverrides(cmd, f.overrides);
   cmd->add_option("--replay", f.replay, "run the rays of a --dump FILE again, alone, and say what each finds now");
   return {cmd, [flags] { return watertight(*flags); }};
 }

@@ -4,6 +4,8 @@
 #include <functional>
 #include <string>
 
+#include "scene/scene.h"
+
 
 namespace CLI {
 class App;
@@ -27,6 +29,10 @@ Command addMeshCommand(CLI::App& app);
 constexpr long long kMaxFilmPixels = 1LL << 25;
 constexpr int kMaxFilmSide = 16384;
 
+// --set POINTER=VALUE and --iso S=V (repeatable): the scene file changed on the command line
+// (SceneOverrides), for every command that reads a scene.
+void addSceneOverrides(CLI::App* cmd, SceneOverrides& overrides);
+
 // --resolution WIDTHxHEIGHT, each side 1 to kMaxFilmSide.
 void parseResolution(const std::string& text, int& width, int& height);
 // A temporary name beside `path`, unique to this process: ".NAME.partial-PID".
@@ -45,6 +51,7 @@ struct CheckFlags {
   std::string scene, intersector, json, offset, dump, replay, rayFlow;
   int rays = 100000, threads = 0;
   long long seed = 1;
+  SceneOverrides overrides;
 };
 
 }  // namespace iso

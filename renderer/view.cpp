@@ -179,11 +179,13 @@ class ViewSession {
 ViewSession::ViewSession(const std::string& path, const ViewOptions& options) : m_path(path), m_options(options) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, "", "cannot read the scene file");
-  std::stringstream text;
-  text << in.rdbuf();
-  checkJsonNesting(text.str(), path);
-  m_doc = Json::parse(text.str(), nullptr, false);
-  m_desc = parseSceneText(text.str(), path);  // the parser's own message for any problem
+  std::stringstream file;
+  file << in.rdbuf();
+  // With the command line's overrides: the view edits (and saves) the scene as overridden.
+  const std::string text = overriddenSceneText(file.str(), path, options.overrides);
+  checkJsonNesting(text, path);
+  m_doc = Json::parse(text, nullptr, false);
+  m_desc = parseSceneText(text, path);  // the parser's own message for any problem
   if (m_doc.is_discarded() || !m_doc.is_object()) throw InputError(path, "", "expected a JSON object");
   m_firstWorld = std::make_unique<World>(m_desc, m_desc.settings.intersector);
   for (const std::string& w : m_firstWorld->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());

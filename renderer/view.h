@@ -7,6 +7,8 @@
 #include <memory>
 #include <string>
 
+#include "scene/scene.h"
+
 namespace iso {
 
 struct ViewOptions {
@@ -15,6 +17,7 @@ struct ViewOptions {
   int width = 0;     // 0: 480 wide, the scene's aspect
   int height = 0;
   int threads = 0;   // 0: all cores
+  SceneOverrides overrides;  // --set / --iso: applied to the scene's JSON the view starts from
 };
 
 class ViewSession;

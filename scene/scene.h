@@ -122,6 +122,21 @@ struct SceneDesc {
   std::vector<VolumeDesc> volumes;
   std::map<std::string, MaterialDesc> materials;
   std::vector<LightDesc> lights;
+  // The command line's changes to the file (SceneOverrides), as applied: "POINTER=VALUE", the
+  // value as compact JSON, in the order given (--iso first). Images record them.
+  std::vector<std::string> overrides;
+};
+
+// Changes to a scene file made on the command line, applied to its JSON before it is read, so
+// that the parser validates them like the file itself.
+struct SceneOverrides {
+  // --set POINTER=VALUE: a JSON pointer (RFC 6901) to a place in the scene whose parent exists
+  // (an object: the key is set or added; an array: an index it has), and a JSON value; a bare
+  // word that is not JSON (path, ../ct.nrrd) is taken as a string.
+  std::vector<std::string> set;
+  // --iso S=V: the value of iso-surface S, counted over all volumes from 0 (as --iso-sweep).
+  std::vector<std::string> iso;
+  bool empty() const { return set.empty() && iso.empty(); }
 };
 
 // JSON text nested deeper than `limit` arrays and objects is refused (an InputError naming the
@@ -131,9 +146,13 @@ void checkJsonNesting(const std::string& text, const std::string& file, int limi
 // nlohmann's "[json.exception...]" prefix (e.g. a number beyond double: 1e400).
 [[noreturn]] void throwJsonError(const std::string& file, const std::string& what);
 
-// Reads and validates a scene file. Any problem is an InputError naming the JSON path.
-SceneDesc parseSceneFile(const std::string& path);
-SceneDesc parseSceneText(const std::string& text, const std::string& path);
+// Reads and validates a scene file, with the command line's overrides applied. Any problem is an
+// InputError naming the JSON path (or the flag, for an override that cannot be applied).
+SceneDesc parseSceneFile(const std::string& path, const SceneOverrides& overrides = {});
+SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides = {});
+// The scene's JSON text with the overrides applied (for `isotrace view`, which edits the JSON);
+// refuses what parseSceneText refuses about them.
+std::string overriddenSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides);
 
 const char* integratorList();
 bool isKnownIntegrator(const std::string& name);

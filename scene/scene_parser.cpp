@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <fstream>
 #include <algorithm>
+#include <cmath>
 #include <set>
 #include <sstream>
 
@@ -353,7 +354,10 @@ void throwJsonError(const std::string& file, const std::string& what) {
   throw InputError(file, "", "JSON: " + (bracket == std::string::npos ? what : what.substr(bracket + 2)));
 }
 
-SceneDesc parseSceneText(const std::string& text, const std::string& path) {
+namespace {
+
+// The scene file's JSON tree; a syntax error names its line and column.
+Json parseJsonText(const std::string& text, const std::string& path) {
   checkJsonNesting(text, path);
   Json root;
   try {
@@ -375,6 +379,114 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
     throw InputError(path, "line " + std::to_string(line) + ", column " + std::to_string(col),
                      "JSON syntax error: " + what);
   }
+  return root;
+}
+
+// --set's value: JSON, or a bare word that is not JSON (a name, a path) as a string. Text that
+// starts like JSON but is not (3O0, [1, 2) is refused rather than guessed at.
+Json overrideValue(const std::string& value, const std::string& flag) {
+  if (value.empty()) throw InputError(flag, "", "no value after '=' (a string is written \"\" or as a bare word)");
+  Json v = Json::parse(value, nullptr, false);
+  if (!v.is_discarded()) return v;
+  if (std::string("{[\"-0123456789").find(value[0]) != std::string::npos)
+    throw InputError(flag, "", "'" + value + "' is not a JSON value");
+  return Json(value);
+}
+
+// Sets `value` at `pointer` in `root`, step by step: an object takes any key (a missing one
+// becomes an empty object on the way, as a block the file left out: /integrator/type in a scene
+// without "integrator"; the parser then refuses keys it does not know), an array only an index it
+// has, and nothing goes under a number, string or boolean.
+void setAt(Json& root, const std::string& pointer, Json value, const std::string& flag) {
+  if (pointer.empty() || pointer[0] != '/')
+    throw InputError(flag, "", "'" + pointer + "' is not a JSON pointer into the scene (it starts with '/', e.g. /camera/fov)");
+  Json::json_pointer ptr;
+  try {
+    ptr = Json::json_pointer(pointer);
+  } catch (const Json::exception& e) {
+    throw InputError(flag, "", "'" + pointer + "' is not a JSON pointer: " + std::string(e.what()).substr(std::string(e.what()).find("] ") + 2));
+  }
+  std::vector<std::string> tokens;
+  for (Json::json_pointer p = ptr; !p.empty(); p = p.parent_pointer()) tokens.insert(tokens.begin(), p.back());
+  Json* at = &root;
+  Json::json_pointer where;  // the steps so far
+  for (size_t i = 0; i < tokens.size(); ++i) {
+    const std::string& key = tokens[i];
+    const bool last = i + 1 == tokens.size();
+    const std::string here = where.empty() ? "the scene" : where.to_string();
+    if (at->is_object()) {
+      if (last) {
+        (*at)[key] = std::move(value);
+        return;
+      }
+      if (!at->contains(key)) (*at)[key] = Json::object();
+      at = &(*at)[key];
+    } else if (at->is_array()) {
+      const bool digits = !key.empty() && key.size() < 10 && key.find_first_not_of("0123456789") == std::string::npos &&
+                          (key == "0" || key[0] != '0');
+      if (!digits || std::stoul(key) >= at->size())
+        throw InputError(flag, "", here + " is an array of " + std::to_string(at->size()) + ": no entry '" + key + "'");
+      if (last) {
+        (*at)[std::stoul(key)] = std::move(value);
+        return;
+      }
+      at = &(*at)[std::stoul(key)];
+    } else {
+      throw InputError(flag, "", here + " is a " + std::string(at->type_name()) + ": nothing goes under it");
+    }
+    where /= key;
+  }
+}
+
+// The overrides applied to the scene's tree, each recorded in `applied` as POINTER=VALUE.
+void applyOverrides(Json& root, const SceneOverrides& overrides, std::vector<std::string>& applied) {
+  if (overrides.empty()) return;
+  if (!root.is_object()) return;  // the parser says what is wrong with the file itself
+  for (const std::string& text : overrides.iso) {
+    const std::string flag = "--iso " + text;
+    const auto eq = text.find('=');
+    if (eq == std::string::npos) throw InputError(flag, "", "expected SURFACE=VALUE, e.g. 0=300 (SURFACE counts all iso-surfaces from 0)");
+    const std::string index = text.substr(0, eq), number = text.substr(eq + 1);
+    double value = 0;
+    size_t used = 0;
+    try {
+      value = std::stod(number, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != number.size() || !std::isfinite(value))
+      throw InputError(flag, "", "'" + number + "' is not a finite number");
+    // The surfaces as the parser will number them: every volume's list, in order.
+    std::vector<std::string> pointers;
+    const auto volumes = root.find("volumes");
+    if (volumes != root.end() && volumes->is_array())
+      for (size_t v = 0; v < volumes->size(); ++v) {
+        const Json& vol = (*volumes)[v];
+        const auto isos = vol.is_object() ? vol.find("isosurfaces") : vol.end();
+        if (vol.is_object() && isos != vol.end() && isos->is_array())
+          for (size_t k = 0; k < isos->size(); ++k)
+            pointers.push_back("/volumes/" + std::to_string(v) + "/isosurfaces/" + std::to_string(k) + "/value");
+      }
+    const bool digits = !index.empty() && index.size() < 10 && index.find_first_not_of("0123456789") == std::string::npos;
+    if (!digits || std::stoul(index) >= pointers.size())
+      throw InputError(flag, "", "no iso-surface '" + index + "' (the scene has " + std::to_string(pointers.size()) +
+                                     ", numbered from 0 over all volumes)");
+    const std::string& pointer = pointers[std::stoul(index)];
+    setAt(root, pointer, Json(value), flag);
+    applied.push_back(pointer + "=" + Json(value).dump());
+  }
+  for (const std::string& text : overrides.set) {
+    const std::string flag = "--set " + text;
+    const auto eq = text.find('=');
+    if (eq == std::string::npos) throw InputError(flag, "", "expected POINTER=VALUE, e.g. /camera/fov=30");
+    Json value = overrideValue(text.substr(eq + 1), flag);
+    const std::string dumped = value.dump();
+    setAt(root, text.substr(0, eq), std::move(value), flag);
+    applied.push_back(text.substr(0, eq) + "=" + dumped);
+  }
+}
+
+SceneDesc parseSceneJson(const Json& root, const std::string& path) {
   const fs::path dir = fs::path(path).parent_path();
   SceneDesc scene;
   scene.path = path;
@@ -547,8 +659,27 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path) {
   return scene;
 }
 
-SceneDesc parseSceneFile(const std::string& path) {
-  return parseSceneText(readWholeFile(path, "scene file", kSceneStreamCap), path);
+}  // namespace
+
+SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides) {
+  Json root = parseJsonText(text, path);
+  std::vector<std::string> applied;
+  applyOverrides(root, overrides, applied);
+  SceneDesc scene = parseSceneJson(root, path);
+  scene.overrides = std::move(applied);
+  return scene;
+}
+
+std::string overriddenSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides) {
+  if (overrides.empty()) return text;
+  Json root = parseJsonText(text, path);
+  std::vector<std::string> applied;
+  applyOverrides(root, overrides, applied);
+  return root.dump(2);
+}
+
+SceneDesc parseSceneFile(const std::string& path, const SceneOverrides& overrides) {
+  return parseSceneText(readWholeFile(path, "scene file", kSceneStreamCap), path, overrides);
 }
 
 }  // namespace iso

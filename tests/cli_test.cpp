@@ -110,6 +110,62 @@ TEST(Cli, BadFlagsExitWithStatus2) {
   EXPECT_FALSE(fs::exists(dir + "/out.jpg"));
 }
 
+// --set and --iso change the scene as if its file said so: the same image as the edited file,
+// recorded in the stats and the image's metadata; every command that reads a scene takes them;
+// a bad pointer or value is one line, exit 2, no image.
+TEST(Cli, SetAndIsoOverrideTheSceneFile) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/s.json", edited = dir + "/edited.json";
+  const std::string sphere = R"({"procedural": {"field": "sphere", "resolution": [12,12,12]}, "isosurfaces": [{"value": 0.5}, {"value": 0.8}]})";
+  test::writeText(path, scene(sphere));
+  test::writeText(edited, R"({"camera": {"position": [0, 0, 4], "fov": 30}, "film": {"width": 16, "height": 12},
+    "integrator": {"type": "normals"},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [12,12,12]}, "isosurfaces": [{"value": 0.5}, {"value": 0.3}]}]})");
+  const auto a = runIsotrace("render " + path + " -o " + dir + "/a.exr --quiet --set /camera/fov=30 --set /integrator/type=normals"
+                             " --iso 1=0.3 --stats " + dir + "/a.json");
+  ASSERT_EQ(a.status, 0) << a.err;
+  const auto b = runIsotrace("render " + edited + " -o " + dir + "/b.exr --quiet");
+  ASSERT_EQ(b.status, 0) << b.err;
+  std::map<std::string, std::string> metadata;
+  const std::vector<float> pa = readExr(dir + "/a.exr", nullptr, &metadata), pb = readExr(dir + "/b.exr");
+  ASSERT_FALSE(pa.empty());
+  EXPECT_EQ(pa, pb);
+  std::ifstream stats(dir + "/a.json");
+  const nlohmann::json s = nlohmann::json::parse(stats);
+  EXPECT_EQ(s["overrides"], nlohmann::json::parse(R"(["/volumes/0/isosurfaces/1/value=0.3", "/camera/fov=30", "/integrator/type=\"normals\""])"));
+  EXPECT_EQ(metadata["isotrace:overrides"],
+            "/volumes/0/isosurfaces/1/value=0.3\n/camera/fov=30\n/integrator/type=\"normals\"");
+  // The other commands that read a scene.
+  const auto info = runIsotrace("info " + path + " --iso 0=0.25");
+  EXPECT_EQ(info.status, 0) << info.err;
+  EXPECT_NE(info.out.find("iso-surface 0.25:"), std::string::npos) << info.out;
+  for (const std::string& command : {"watertight " + path + " --rays 100", "bench " + path + " --rays 100",
+                                     "mesh " + path + " -o " + dir + "/m.glb"}) {
+    const auto bad = runIsotrace(command + " --iso 7=1");
+    EXPECT_EQ(bad.status, 2) << command;
+    EXPECT_NE(bad.err.find("--iso 7=1: no iso-surface '7' (the scene has 2"), std::string::npos) << command << ": " << bad.err;
+  }
+  // Malformed overrides.
+  expectBadInput(dir, path + " --set /camera/fov", "--set /camera/fov: expected POINTER=VALUE");
+  expectBadInput(dir, path + " --set camera/fov=3", "'camera/fov' is not a JSON pointer");
+  expectBadInput(dir, path + " --set /camera/fov=3O", "--set /camera/fov=3O: '3O' is not a JSON value");
+  expectBadInput(dir, path + " --set /camera/fov=", "no value after '='");
+  expectBadInput(dir, path + " --set /lights/0/type=sun", "s.json: /lights: expected an array");
+  expectBadInput(dir, path + " --set /nothing/here=1", "s.json: /nothing: unknown key 'nothing'");
+  expectBadInput(dir, path + " --set /volumes/3/isosurfaces=[]", "/volumes is an array of 1: no entry '3'");
+  expectBadInput(dir, path + " --set /volumes/01/x=1", "/volumes is an array of 1: no entry '01'");
+  expectBadInput(dir, path + " --set /film/width/x=1", "--set /film/width/x=1: /film/width is a number: nothing goes under it");
+  expectBadInput(dir, path + " --set /camera/position/x=1", "/camera/position is an array of 3: no entry 'x'");
+  expectBadInput(dir, path + " --set /camera/fov=abc", "s.json: /camera/fov: expected a number");
+  expectBadInput(dir, path + " --set /camera/fvo=30", "s.json: /camera/fvo: unknown key 'fvo' (did you mean 'fov'?)");
+  expectBadInput(dir, path + " --set /film/width=0", "s.json: /film/width: value 0 is out of range");
+  expectBadInput(dir, path + " --set '/camera/~2=1'", "is not a JSON pointer");
+  expectBadInput(dir, path + " --iso 2=0.5", "--iso 2=0.5: no iso-surface '2' (the scene has 2");
+  expectBadInput(dir, path + " --iso 0=inf", "--iso 0=inf: 'inf' is not a finite number");
+  expectBadInput(dir, path + " --iso x", "--iso x: expected SURFACE=VALUE");
+  expectBadInput(dir, path + " --iso -1=0.5", "no iso-surface '-1'");
+}
+
 // Reads an 8-bit image into bytes; its channel count in `channels`.
 std::vector<uint8_t> readBytes(const std::string& path, int& channels, int& width) {
   auto in = OIIO::ImageInput::open(path);

@@ -201,7 +201,7 @@ std::vector<float> readExr(const std::string& path, std::vector<std::string>* ch
   if (channels) *channels = spec.channelnames;
   if (metadata)
     for (const char* key : {"isotrace:spp", "isotrace:interrupted", "isotrace:integrator", "isotrace:spp_mean",
-                            "isotrace:spp_max", "isotrace:clamp"})
+                            "isotrace:spp_max", "isotrace:clamp", "isotrace:overrides"})
       if (spec.find_attribute(key)) (*metadata)[key] = spec.get_string_attribute(key);
   return data;
 }

@@ -65,7 +65,7 @@ std::vector<pid_t> processesWithArgument(const std::string& program, const std::
 // A small mixed scene: a floor quad, an iso-surface ball, a point light and a sky (32x24).
 std::string mixedScene();
 // An image's pixels as float (empty if it cannot be read), its channel names and isotrace's
-// metadata (isotrace:spp, :interrupted, :integrator, :spp_mean, :spp_max, :clamp).
+// metadata (isotrace:spp, :interrupted, :integrator, :spp_mean, :spp_max, :clamp, :overrides).
 std::vector<float> readExr(const std::string& path, std::vector<std::string>* channels = nullptr,
                            std::map<std::string, std::string>* metadata = nullptr);
 

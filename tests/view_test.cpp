@@ -26,13 +26,14 @@ struct Running {
   ViewServer server;
   int port;
   std::thread thread;
-  Running(const std::string& scene, int width, int height)
+  Running(const std::string& scene, int width, int height, const SceneOverrides& overrides = {})
       : server(scene, [&] {
           ViewOptions o;
           o.port = 0;
           o.width = width;
           o.height = height;
           o.threads = 2;
+          o.overrides = overrides;
           return o;
         }()),
         port(server.bind()), thread([this] { server.serve(); }) {}
@@ -101,6 +102,21 @@ TEST(View, ServesItsPageStateAndFramesOnly) {
   ASSERT_TRUE(jpeg);
   EXPECT_EQ(jpeg->get_header_value("Content-Type"), "image/jpeg");
   EXPECT_EQ(jpeg->body.substr(0, 2), std::string("\xff\xd8", 2));
+}
+
+// --iso and --set: the view starts from the scene as overridden (its state shows the values).
+TEST(View, StartsFromTheOverriddenScene) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  SceneOverrides overrides;
+  overrides.iso = {"0=0.45"};
+  overrides.set = {"/integrator/type=normals"};
+  Running view(dir + "/s.json", 32, 24, overrides);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json s = state(c);
+  ASSERT_EQ(s["surfaces"].size(), 1u);
+  EXPECT_EQ(s["surfaces"][0]["value"], 0.45);
+  EXPECT_EQ(s["integrator"], "normals");
 }
 
 TEST(View, BadRequestsAre400AndChangeNothing) {
@@ -237,7 +253,9 @@ TEST(View, BadFlagsAndScenesAreBadInput) {
            {dir + "/s.json --resolution 0x5", "--resolution: expected WIDTHxHEIGHT"},
            {dir + "/s.json --resolution 4000x4000", "at most 2^22 pixels"},
            {dir + "/s.json --host 999.1.1.1 --port 0", "cannot listen on 999.1.1.1"},
-           {dir + "/s.json --threads -1", "--threads"}}) {
+           {dir + "/s.json --threads -1", "--threads"},
+           {dir + "/s.json --iso 3=1", "--iso 3=1: no iso-surface '3' (the scene has 1"},
+           {dir + "/s.json --set /camera/fov=x", "/camera/fov: expected a number"}}) {
     const auto r = test::runIsotrace("view " + args);
     EXPECT_EQ(r.status, 2) << args << ": " << r.err;
     EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
