@@ -65,12 +65,15 @@ int info(const std::string& path, const SceneOverrides& overrides) {
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
+    bool drawn = false;
+    for (const SurfaceInfo& si : world.surfaces()) drawn = drawn || si.volume == int(v);
     std::printf("  volume %zu: %s (%s)\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
                 "origin (%g, %g, %g), spacing (%g, %g, %g)%s\n",
                 v, vi.name.c_str(), vi.format.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
                 g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
                 g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
-                vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
+                !drawn ? ", a data field (no iso-surface: it colours others, is not drawn)"
+                : vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
     for (const std::string& note : vi.notes) std::printf("    %s\n", note.c_str());
     // Where the values lie, to choose iso values by: the range and a few quantiles.
     const std::vector<double> shares{0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99};
@@ -85,6 +88,10 @@ int info(const std::string& path, const SceneOverrides& overrides) {
                     100.0 * double(si.surface->activeBricks().size()) / double(std::max<size_t>(1, si.surface->totalBricks())),
                     si.surface->bytes() / 1048576.0, world.materials()[si.material].name.c_str(),
                     si.surface->activeBricks().empty() ? " (empty: not built)" : "");
+    for (const SurfaceInfo& si : world.surfaces())
+      if (si.volume == int(v) && si.colorBy)
+        std::printf("    iso-surface %g coloured by %s through %s over [%g, %g]\n", si.iso, si.colorBy->fieldName.c_str(),
+                    si.colorBy->map.name().c_str(), si.colorBy->lo, si.colorBy->hi);
   }
   std::printf("  materials in use: %zu\n", world.materials().size());
   const size_t shown = std::min<size_t>(world.materials().size(), 12);

@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "scene/colormap.h"
+
 #include "volume/transform.h"
 
 #include "volume/intersectors.h"
@@ -42,6 +44,16 @@ struct MaterialDesc {
   bool thin = false;        // dielectric: a thin sheet (straight transmission, shadows pass)
 };
 
+// "color_by": the surface's base colour from a colour map of a scalar at the hit.
+struct ColorByDesc {
+  int volume = -1;        // the scene's volume sampled (trilinear, in its own placement); -1: the
+                          // gradient magnitude of the surface's own volume
+  std::string fieldName;  // as written: a volume's "name", or "gradient_magnitude"
+  ColorMap map;
+  double lo = 0, hi = 1;  // the range mapped onto the map; values outside clamp
+  Vec3d nanColor{0.5, 0.5, 0.5};  // sRGB, where the field has no value (outside its grid)
+};
+
 struct IsoSurfaceDesc {
   double value = 0;
   std::optional<Vec3d> color;  // shown by the eyelight integrator when there is no material
@@ -49,6 +61,7 @@ struct IsoSurfaceDesc {
   std::string materialWhere;   // JSON path of the reference, for messages
   bool solidAbove = true;      // the solid (e.g. glass) is where value > iso
   bool smoothNormals = true;   // shading normals from Grid::smoothGradient; false: the cell's own
+  std::optional<ColorByDesc> colorBy;
 };
 
 enum class MeshShape { None, Sphere, Quad };
@@ -92,7 +105,8 @@ struct VolumeDesc {
   VolumePart part;  // which series of a DICOM folder, which grid of a VDB file
   std::optional<Vec3d> origin, spacing;
   Transform transform;  // applied after origin/spacing place the grid
-  std::vector<IsoSurfaceDesc> isosurfaces;
+  std::string name;     // "name": how "color_by" refers to it (empty: none)
+  std::vector<IsoSurfaceDesc> isosurfaces;  // none: a data field that colours others, not drawn
 };
 
 struct RenderSettings {

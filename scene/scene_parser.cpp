@@ -486,6 +486,63 @@ void applyOverrides(Json& root, const SceneOverrides& overrides, std::vector<std
   }
 }
 
+// "color_by": {"field": NAME, "map": NAME or [[value, [r, g, b]], ...], "range": [lo, hi],
+// "nan_color": [r, g, b]}. The field's name is resolved once every volume is read.
+ColorByDesc parseColorBy(ObjectReader r) {
+  ColorByDesc c;
+  if (!r.has("field")) r.fail(r.at("field"), "required key is missing (a volume's \"name\", or \"gradient_magnitude\")");
+  c.fieldName = r.string("field", "");
+  if (c.fieldName.empty()) r.fail(r.at("field"), "empty field name");
+  const Json* map = r.get("map");
+  if (!map || map->is_string()) {
+    const std::string name = map ? map->get<std::string>() : "viridis";
+    if (!ColorMap::named(name, c.map))
+      r.fail(r.at("map"), "unknown colour map '" + name + "' (known: " + ColorMap::list() + ", or a list of [value, [r, g, b]] stops)");
+  } else {
+    // A user's map: stops [value, [r, g, b]] (field values rising, sRGB in [0, 1]); the first and
+    // last values are the range.
+    if (!map->is_array() || map->size() < 2 || map->size() > 1024)
+      r.fail(r.at("map"), "expected a map name or a list of 2 to 1024 stops [value, [r, g, b]]");
+    std::vector<std::pair<double, Vec3d>> stops;
+    for (size_t i = 0; i < map->size(); ++i) {
+      const std::string at = r.at("map") + "/" + std::to_string(i);
+      const Json& s = (*map)[i];
+      if (!s.is_array() || s.size() != 2 || !s[1].is_array() || s[1].size() != 3)
+        r.fail(at, "expected a stop [value, [r, g, b]]");
+      const double value = r.toNumber(s[0], at + "/0", -1e300, 1e300);
+      Vec3d rgb;
+      for (int k = 0; k < 3; ++k) rgb[k] = r.toNumber(s[1][size_t(k)], at + "/1/" + std::to_string(k), 0, 1);
+      if (!stops.empty() && !(value > stops.back().first))
+        r.fail(at + "/0", "stop values must rise strictly (this one is not above the one before)");
+      stops.push_back({value, rgb});
+    }
+    const double span = stops.back().first - stops.front().first;
+    std::vector<ColorMap::Stop> normalised;
+    for (const auto& [value, rgb] : stops)
+      normalised.push_back({float((value - stops.front().first) / span), Vec3f(rgb)});
+    normalised.back().position = 1;
+    for (size_t i = 1; i < normalised.size(); ++i)
+      if (!(normalised[i].position > normalised[i - 1].position))
+        r.fail(r.at("map"), "stops too close together to tell apart in float");
+    c.map = ColorMap::fromStops(std::move(normalised));
+    c.lo = stops.front().first;
+    c.hi = stops.back().first;
+  }
+  if (map && map->is_array() && r.has("range"))
+    r.fail(r.at("range"), "a map of stops takes its range from their values: give one or the other");
+  if (const Json* range = r.get("range")) {
+    if (!range->is_array() || range->size() != 2) r.fail(r.at("range"), "expected [low, high]");
+    c.lo = r.toNumber((*range)[0], r.at("range") + "/0");
+    c.hi = r.toNumber((*range)[1], r.at("range") + "/1");
+    if (!(c.lo < c.hi)) r.fail(r.at("range"), "an empty range: low must be below high");
+  } else if (!map || map->is_string()) {
+    r.fail(r.at("range"), "required key is missing ([low, high] of the field's values, mapped onto the map)");
+  }
+  if (const auto nan = r.rgb("nan_color", 0, 1)) c.nanColor = *nan;
+  r.finish();
+  return c;
+}
+
 SceneDesc parseSceneJson(const Json& root, const std::string& path) {
   const fs::path dir = fs::path(path).parent_path();
   SceneDesc scene;
@@ -568,7 +625,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
                       {"file", "procedural", "dims", "type", "endian", "series", "grid", "origin", "spacing", "transform",
-                       "isosurfaces"});
+                       "name", "isosurfaces"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
@@ -629,18 +686,29 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
       if (v.spacing && !(v.spacing->x > 0 && v.spacing->y > 0 && v.spacing->z > 0))
         vr.fail(vr.at("spacing"), "spacing must be positive");
       if (const Json* t = vr.get("transform")) v.transform = parseTransform(ObjectReader(*t, vr.at("transform"), path, kTransformKeys));
-      const Json& isos = vr.require("isosurfaces");
-      if (!isos.is_array() || isos.empty())
-        vr.fail(vr.at("isosurfaces"), "expected a non-empty array of iso-surfaces");
+      v.name = vr.string("name", "");
+      if (vr.has("name")) {
+        if (v.name.empty() || v.name == "gradient_magnitude")
+          vr.fail(vr.at("name"), v.name.empty() ? "empty name" : "'gradient_magnitude' names the gradient, not a volume");
+        for (const VolumeDesc& other : scene.volumes)
+          if (other.name == v.name) vr.fail(vr.at("name"), "the name '" + v.name + "' is taken by " + other.where);
+      }
+      // No iso-surfaces: a data field (it colours others' surfaces and is not drawn).
+      const Json* isosJson = vr.get("isosurfaces");
+      static const Json kNone = Json::array();
+      const Json& isos = isosJson ? *isosJson : kNone;
+      if (!isos.is_array()) vr.fail(vr.at("isosurfaces"), std::string("expected an array of iso-surfaces, found ") + typeName(isos));
       for (size_t k = 0; k < isos.size(); ++k) {
         ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path,
-                        {"value", "color", "material", "inside", "normals"});
+                        {"value", "color", "material", "inside", "normals", "color_by"});
         IsoSurfaceDesc iso;
         iso.value = ir.toNumber(ir.require("value"), ir.at("value"));
         iso.color = ir.rgb("color", 0, 1);
         iso.material = materialRef(ir, iso.materialWhere);
         iso.solidAbove = ir.choice("inside", "above", {"above", "below"}) == "above";
         iso.smoothNormals = ir.choice("normals", "smooth", {"smooth", "cell"}) == "smooth";
+        if (const Json* c = ir.get("color_by")) iso.colorBy = parseColorBy(ObjectReader(*c, ir.at("color_by"), path,
+                                                                                        {"field", "map", "range", "nan_color"}));
         ir.finish();
         v.isosurfaces.push_back(iso);
       }
@@ -656,6 +724,21 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
   for (const MeshDesc& m : scene.meshes) checkMaterial(m.material, m.materialWhere);
   for (const VolumeDesc& v : scene.volumes)
     for (const IsoSurfaceDesc& iso : v.isosurfaces) checkMaterial(iso.material, iso.materialWhere);
+  // "color_by" fields name volumes anywhere in the list.
+  for (VolumeDesc& v : scene.volumes)
+    for (size_t k = 0; k < v.isosurfaces.size(); ++k) {
+      std::optional<ColorByDesc>& c = v.isosurfaces[k].colorBy;
+      if (!c || c->fieldName == "gradient_magnitude") continue;
+      std::string names;
+      for (size_t i = 0; i < scene.volumes.size(); ++i) {
+        if (scene.volumes[i].name == c->fieldName) c->volume = int(i);
+        if (!scene.volumes[i].name.empty()) names += (names.empty() ? "" : ", ") + scene.volumes[i].name;
+      }
+      if (c->volume < 0)
+        throw InputError(path, v.where + "/isosurfaces/" + std::to_string(k) + "/color_by/field",
+                         "no volume is named '" + c->fieldName + "' (named: " + (names.empty() ? "none" : names) +
+                             "; or \"gradient_magnitude\")");
+    }
   return scene;
 }
 

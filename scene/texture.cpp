@@ -14,11 +14,12 @@
 #include "volume/input_file.h"
 
 namespace iso {
-namespace {
 
 float srgbToLinear(float v) {
   return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
 }
+
+namespace {
 
 int wrapIndex(int i, int n, TextureWrap wrap) {
   switch (wrap) {

@@ -7,6 +7,9 @@
 
 namespace iso {
 
+// The sRGB transfer function undone: an encoded value in [0, 1] to linear light.
+float srgbToLinear(float v);
+
 struct Vec4f {
   float x = 0, y = 0, z = 0, w = 1;
   Vec3f rgb() const { return {x, y, z}; }

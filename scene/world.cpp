@@ -1,5 +1,7 @@
 #include "scene/world.h"
 
+#include "scene/texture.h"
+
 #include <algorithm>
 #include <filesystem>
 #include <chrono>
@@ -123,6 +125,14 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   try {
     loadMeshes(scene);
     buildVolumes(scene, intersector, sameVolumes);
+    // "color_by": the sampled volume's placement (it may come later in the list) and the NaN colour.
+    for (SurfaceInfo& s : m_surfaces) {
+      if (!s.colorBy) continue;
+      const VolumeInfo& field = m_volumes[size_t(s.colorBy->volume < 0 ? s.volume : s.colorBy->volume)];
+      s.colorWorldToObject = field.transform.inverse();
+      const Vec3d n = s.colorBy->nanColor;
+      s.nanColor = {srgbToLinear(float(n.x)), srgbToLinear(float(n.y)), srgbToLinear(float(n.z))};
+    }
     buildLights(scene);
     // The GGX albedo table (~8e7 instructions, built once per process on first use) is built
     // here rather than inside the first tile a thread renders, where it held the other threads
@@ -398,7 +408,8 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     if (!shared) info.bricks = std::make_shared<const BrickGrid>(*info.grid);
     m_volumes.push_back(std::move(info));
     const VolumeInfo& vol = m_volumes.back();
-    const bool instanced = !vol.transform.isIdentity();
+    // (A volume without iso-surfaces is a data field for "color_by": nothing to trace.)
+    const bool instanced = !vol.transform.isIdentity() && !desc.isosurfaces.empty();
     RTCScene target = m_scene;
     std::vector<GeometryRecord> records;
     if (instanced) {
@@ -413,6 +424,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       s.iso = isoDesc.value;
       s.solidAbove = isoDesc.solidAbove;
       s.smoothNormals = isoDesc.smoothNormals;
+      s.colorBy = isoDesc.colorBy;
       if (!isoDesc.material.empty()) {
         s.material = materialFor(scene, isoDesc.material);
       } else if (isoDesc.color) {
@@ -908,7 +920,38 @@ bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   return r.tfar < 0;
 }
 
+double World::colorValue(const SurfaceInfo& s, const Vec3d& world) const {
+  const ColorByDesc& c = *s.colorBy;
+  const VolumeInfo& vol = m_volumes[size_t(c.volume < 0 ? s.volume : c.volume)];
+  const Grid& grid = *vol.grid;
+  const Vec3d object = vol.transform.isIdentity() ? world : s.colorWorldToObject.point(world);
+  const Vec3d g = (object - grid.origin()) / grid.spacing();
+  const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
+  // Outside the field's grid (beyond rounding of the hit's position): no value.
+  const double slack = 1e-9 * (std::max({std::fabs(g.x), std::fabs(g.y), std::fabs(g.z)}) + 1);
+  for (int a = 0; a < 3; ++a)
+    if (!(g[a] >= -slack && g[a] <= hi[a] + slack)) return NAN;
+  if (c.volume >= 0) return grid.interpolate(g);
+  // The gradient's magnitude in world units: per grid step to per object unit, then the
+  // inverse transpose of the volume's placement.
+  const Vec3d d = grid.smoothGradient(g) / grid.spacing();
+  if (vol.transform.isIdentity()) return length(d);
+  const Transform& inv = s.colorWorldToObject;
+  Vec3d worldGradient;
+  for (int i = 0; i < 3; ++i) worldGradient[i] = inv.m[0][i] * d.x + inv.m[1][i] * d.y + inv.m[2][i] * d.z;
+  return length(worldGradient);
+}
+
 Vec3f World::albedo(const Hit& hit) const {
+  if (hit.surface >= 0) {
+    const SurfaceInfo& s = m_surfaces[size_t(hit.surface)];
+    if (s.colorBy) {
+      const double v = colorValue(s, hit.position64);
+      if (!std::isfinite(v)) return s.nanColor;
+      const ColorByDesc& c = *s.colorBy;
+      return c.map.linear(float((v - c.lo) / (c.hi - c.lo)));
+    }
+  }
   const Material& m = m_materials[hit.material];
   Vec3f c = m.color;
   if (m.colorTexture >= 0) c = c * m_textures[m.colorTexture].lookup(hit.uv.x, hit.uv.y).rgb();

@@ -49,6 +49,10 @@ struct SurfaceInfo {
   bool smoothNormals = true;
   int light = -1;  // index into World::lights() when the surface emits
   std::unique_ptr<IsoSurface> surface;
+  // "color_by": the base colour from a colour map of a field at the hit (World::albedo).
+  std::optional<ColorByDesc> colorBy;
+  Transform colorWorldToObject;  // of the volume sampled (its grid's object space)
+  Vec3f nanColor;                // colorBy->nanColor in linear light
 };
 
 struct VolumeInfo {
@@ -105,6 +109,8 @@ class World {
   // radiance emitted towards `wo` (unit, pointing away from the surface).
   Bsdf bsdf(const Hit& hit) const;
   Vec3f albedo(const Hit& hit) const;
+  // The value "color_by" maps at an iso-surface hit (NaN where its field has none).
+  double colorValue(const SurfaceInfo& s, const Vec3d& world) const;
   Vec3f emitted(const Hit& hit, const Vec3f& wo) const;
   // Radiance from the environment lights along `dir` (a ray that escaped).
   Vec3f environment(const Vec3f& dir) const;

@@ -17,6 +17,7 @@
 #include <sstream>
 #include <thread>
 
+#include "scene/colormap.h"
 #include "scene/gltf.h"
 #include "renderer/film.h"
 #include "scene/world.h"
@@ -83,8 +84,8 @@ TEST(Cli, SceneErrorsNameTheirJsonPath) {
   expectBadInput(dir, path, "/volumes/0/procedural/field: unknown field 'cube'");
   test::writeText(path, scene(R"({"procedural": {"field": "sphere"}, "isosurfaces": [{"value": "high"}]})"));
   expectBadInput(dir, path, "/volumes/0/isosurfaces/0/value: expected a number, found a string");
-  test::writeText(path, scene(R"({"procedural": {"field": "sphere"}})"));
-  expectBadInput(dir, path, "/volumes/0/isosurfaces: required key is missing");
+  test::writeText(path, scene(R"({"procedural": {"field": "sphere"}, "isosurfaces": {"value": 0.5}})"));
+  expectBadInput(dir, path, "/volumes/0/isosurfaces: expected an array of iso-surfaces, found an object");
   test::writeText(path, "{\"film\": {\"width\": 16,}\n}");
   expectBadInput(dir, path, "s.json: line 1, column 23: JSON syntax error");
   expectBadInput(dir, dir + "/absent.json", "absent.json: scene file not found");
@@ -164,6 +165,52 @@ TEST(Cli, SetAndIsoOverrideTheSceneFile) {
   expectBadInput(dir, path + " --iso 0=inf", "--iso 0=inf: 'inf' is not a finite number");
   expectBadInput(dir, path + " --iso x", "--iso x: expected SURFACE=VALUE");
   expectBadInput(dir, path + " --iso -1=0.5", "no iso-surface '-1'");
+}
+
+// Colour by data: a plane iso-surface (z = 7 of a volume whose value is z) coloured by a second
+// volume on another grid and placement whose value rises linearly with world x. The albedo AOV
+// at the centre pixel, where the ray meets the plane at the camera's x, is the map's colour of
+// the value there (within 1/255 in sRGB); where the second volume has no value, the NaN colour.
+TEST(Cli, ColorByDataSamplesTheOtherVolumeAtTheHit) {
+  const std::string dir = test::scratchDir();
+  auto writeFloats = [](const std::string& path, const std::vector<float>& v) {
+    std::ofstream out(path, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(float)));
+  };
+  std::vector<float> slab, temp;
+  for (int k = 0; k < 8; ++k)
+    for (int j = 0; j < 8; ++j)
+      for (int i = 0; i < 8; ++i) slab.push_back(float(2 * k));  // world z, spacing 2
+  for (int k = 0; k < 3; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 3; ++i) temp.push_back(float(8 * i + 6));  // 10 + 2 x, x = 4 i - 2
+  writeFloats(dir + "/slab.raw", slab);
+  writeFloats(dir + "/temp.raw", temp);
+  ColorMap viridis;
+  ASSERT_TRUE(ColorMap::named("viridis", viridis));
+  auto toSrgb = [](float v) { return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1 / 2.4f) - 0.055f; };
+  for (const double x : {0.4, 2.5, 5.1, 10.0}) {
+    char camera[160];
+    std::snprintf(camera, sizeof camera, R"("camera": {"position": [%g, 8, 40], "look_at": [%g, 8, 7], "fov": 0.25})", x, x);
+    test::writeText(dir + "/s.json", std::string("{") + camera + R"(, "film": {"width": 33, "height": 33},
+      "integrator": {"type": "eyelight", "spp": 1},
+      "volumes": [
+        {"file": "slab.raw", "dims": [8, 8, 8], "type": "float32", "spacing": [2, 2, 2],
+         "isosurfaces": [{"value": 7, "color_by": {"field": "temp", "map": "viridis", "range": [10, 22], "nan_color": [1, 0, 1]}}]},
+        {"name": "temp", "file": "temp.raw", "dims": [3, 4, 3], "type": "float32", "spacing": [4, 5, 7],
+         "origin": [-3, -1, -2], "transform": {"translate": [1, 2, 3]}}]})");
+    const auto r = runIsotrace("render " + dir + "/s.json -o " + dir + "/c.exr --aov albedo --quiet");
+    ASSERT_EQ(r.status, 0) << r.err;
+    std::vector<std::string> channels;
+    const std::vector<float> pixels = readExr(dir + "/c.exr", &channels);
+    const size_t n = channels.size(), centre = (16 * 33 + 16) * n;
+    const size_t red = size_t(std::find(channels.begin(), channels.end(), "albedo.R") - channels.begin());
+    ASSERT_LT(red + 2, n);
+    const Vec3f albedo{pixels[centre + red], pixels[centre + red + 1], pixels[centre + red + 2]};
+    // The second volume covers world x in [-2, 6]: beyond, the NaN colour (magenta).
+    const Vec3f expected = x <= 6 ? viridis.srgb(float((10 + 2 * x - 10) / 12)) : Vec3f{1, 0, 1};
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(toSrgb(albedo[c]), expected[c], 1.0 / 255) << "x " << x << ", channel " << c;
+  }
 }
 
 // Reads an 8-bit image into bytes; its channel count in `channels`.

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <random>
 
+#include "scene/colormap.h"
 #include "scene/scene.h"
 #include "scene/world.h"
 #include "tests/test_util.h"
@@ -183,7 +184,7 @@ TEST(SceneFormat, ErrorsNameTheirJsonPath) {
   expectError(R"({"lights": [{"type": "spot"}]})", "/lights/0/direction", "required");
   expectError(R"({"materials": {"m": {"color": 1}}})", "/materials/m/type", "required");
   expectError(R"({"meshes": [{"transform": {}}]})", "/meshes/0", "exactly one of");
-  expectError(R"({"volumes": [{"procedural": {"field": "sphere"}}]})", "/volumes/0/isosurfaces", "required");
+  expectError(R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": 3}]})", "/volumes/0/isosurfaces", "expected an array");
   // Undefined references and bad values.
   expectError(R"({"meshes": [{"shape": "quad", "material": "nope"}]})", "/meshes/0/material", "undefined material 'nope'");
   expectError(R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": [{"value": 0.5, "material": "x"}]}]})",
@@ -201,6 +202,71 @@ TEST(SceneFormat, ErrorsNameTheirJsonPath) {
   expectError(R"({"volumes": [{"file": "a.vdb", "series": "", "isosurfaces": [{"value": 0.5}]}]})", "/volumes/0/series",
               "empty series UID");
   expectError("{\n  \"film\": {\"width\": 3,}\n}", "line 2, column 23", "JSON syntax error");
+}
+
+// "name" and "color_by": every malformed entry names its place.
+TEST(SceneFormat, ColorByErrorsNameTheirJsonPath) {
+  auto volumes = [](const std::string& colorBy, const std::string& second = R"({"procedural": {"field": "torus"}, "name": "t"})") {
+    return R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": [{"value": 0.5, "color_by": )" + colorBy +
+           "}]}, " + second + "]}";
+  };
+  expectError(volumes(R"({"field": "t", "map": "rainbow", "range": [0, 1]})"), "/volumes/0/isosurfaces/0/color_by/map",
+              "unknown colour map 'rainbow' (known: viridis, magma, inferno, plasma, cividis, turbo, cool_warm, grey");
+  expectError(volumes(R"({"field": "t", "range": [1, 1]})"), "/volumes/0/isosurfaces/0/color_by/range", "an empty range");
+  expectError(volumes(R"({"field": "t", "range": [2, 1]})"), "/volumes/0/isosurfaces/0/color_by/range", "an empty range");
+  expectError(volumes(R"({"field": "t", "range": [0]})"), "/volumes/0/isosurfaces/0/color_by/range", "expected [low, high]");
+  expectError(volumes(R"({"field": "t"})"), "/volumes/0/isosurfaces/0/color_by/range", "required key is missing");
+  expectError(volumes(R"({"map": "grey", "range": [0, 1]})"), "/volumes/0/isosurfaces/0/color_by/field", "required key is missing");
+  expectError(volumes(R"({"field": "temperature", "range": [0, 1]})"), "/volumes/0/isosurfaces/0/color_by/field",
+              "no volume is named 'temperature' (named: t; or \"gradient_magnitude\")");
+  expectError(volumes(R"({"field": "t", "range": [0, 1], "nan_color": [2, 0, 0]})"), "/volumes/0/isosurfaces/0/color_by/nan_color/0", "out of range");
+  expectError(volumes(R"({"field": "t", "map": [[0, [0, 0, 0]]]})"), "/volumes/0/isosurfaces/0/color_by/map", "2 to 1024 stops");
+  expectError(volumes(R"({"field": "t", "map": [[0, [0, 0, 0]], [0, [1, 1, 1]]]})"), "/volumes/0/isosurfaces/0/color_by/map/1/0", "must rise strictly");
+  expectError(volumes(R"({"field": "t", "map": [[0, [0, 0, 0]], [1, [1, 1]]]})"), "/volumes/0/isosurfaces/0/color_by/map/1", "expected a stop");
+  expectError(volumes(R"({"field": "t", "map": [[0, [0, 0, 0]], [1, [1, 1, 1]]], "range": [0, 1]})"), "/volumes/0/isosurfaces/0/color_by/range",
+              "takes its range from their values");
+  expectError(volumes(R"({"field": "t", "range": [0, 1], "colour": 1})"), "/volumes/0/isosurfaces/0/color_by/colour", "unknown key");
+  expectError(volumes(R"({"field": "gradient_magnitude", "range": [0, 1]})", R"({"procedural": {"field": "torus"}, "name": ""})"),
+              "/volumes/1/name", "empty name");
+  expectError(volumes(R"({"field": "t", "range": [0, 1]})", R"({"procedural": {"field": "torus"}, "name": "gradient_magnitude"})"),
+              "/volumes/1/name", "names the gradient");
+  expectError(R"({"volumes": [{"procedural": {"field": "torus"}, "name": "a"}, {"procedural": {"field": "torus"}, "name": "a"}]})",
+              "/volumes/1/name", "the name 'a' is taken by /volumes/0");
+  // Well-formed: the field resolves to its volume (also one listed later), a user map's stops give the range.
+  const SceneDesc s = parseSceneText(volumes(R"({"field": "t", "map": [[-2, [0, 0, 0]], [6, [1, 0.5, 0]]]})"), "s.json");
+  const ColorByDesc& c = *s.volumes[0].isosurfaces[0].colorBy;
+  EXPECT_EQ(c.volume, 1);
+  EXPECT_EQ(c.lo, -2);
+  EXPECT_EQ(c.hi, 6);
+  EXPECT_EQ(c.map.srgb(0.5f), Vec3f(0.5f, 0.25f, 0));
+  EXPECT_TRUE(s.volumes[1].isosurfaces.empty());
+  EXPECT_EQ(parseSceneText(volumes(R"({"field": "gradient_magnitude", "range": [0, 1]})"), "s.json")
+                .volumes[0].isosurfaces[0].colorBy->volume, -1);
+}
+
+// The built-in maps as published (8-bit sRGB), ends clamped, NaN to the first colour.
+TEST(ColorMaps, NamedMapsGiveThePublishedColours) {
+  ColorMap viridis, grey, coolWarm;
+  ASSERT_TRUE(ColorMap::named("viridis", viridis));
+  ASSERT_TRUE(ColorMap::named("grey", grey));
+  ASSERT_TRUE(ColorMap::named("cool_warm", coolWarm));
+  EXPECT_FALSE(ColorMap::named("jet", viridis));
+  auto bytes = [](Vec3f c) { return Vec3i{int(std::lround(c.x * 255)), int(std::lround(c.y * 255)), int(std::lround(c.z * 255))}; };
+  EXPECT_EQ(bytes(viridis.srgb(0)), Vec3i(68, 1, 84));      // #440154
+  EXPECT_EQ(bytes(viridis.srgb(1)), Vec3i(253, 231, 37));   // #fde725
+  EXPECT_EQ(bytes(viridis.srgb(-3)), Vec3i(68, 1, 84));
+  EXPECT_EQ(bytes(viridis.srgb(7)), Vec3i(253, 231, 37));
+  EXPECT_EQ(bytes(viridis.srgb(NAN)), Vec3i(68, 1, 84));
+  EXPECT_EQ(bytes(grey.srgb(0.5f)), Vec3i(128, 128, 128));  // halfway between entries 127 and 128
+  // ParaView's cool to warm: blue, a light grey in the middle, red.
+  const Vec3i low = bytes(coolWarm.srgb(0)), high = bytes(coolWarm.srgb(1)), mid = bytes(coolWarm.srgb(0.5f));
+  EXPECT_GT(low.z, low.x);
+  EXPECT_GT(high.x, high.z);
+  EXPECT_NEAR(mid.x, mid.y, 30);
+  EXPECT_GT(mid.y, 190);
+  // Linear light: the sRGB curve undone.
+  EXPECT_NEAR(grey.linear(1).x, 1, 1e-6);
+  EXPECT_NEAR(grey.linear(0.5f).x, 0.2158605f, 2e-3);
 }
 
 // The command line reports the same errors as one line and exit status 2.
