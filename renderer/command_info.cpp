@@ -67,12 +67,13 @@ int info(const std::string& path, const SceneOverrides& overrides) {
     const Grid& g = *vi.grid;
     bool drawn = false;
     for (const SurfaceInfo& si : world.surfaces()) drawn = drawn || si.volume == int(v);
+    for (const SliceInfo& sl : world.slices()) drawn = drawn || sl.volume == int(v);
     std::printf("  volume %zu: %s (%s)\n    %dx%dx%d %s, %.2f MiB samples + %.2f MiB brick ranges; "
                 "origin (%g, %g, %g), spacing (%g, %g, %g)%s\n",
                 v, vi.name.c_str(), vi.format.c_str(), g.dims().x, g.dims().y, g.dims().z, scalarTypeName(g.type()),
                 g.bytes() / 1048576.0, vi.bricks->bytes() / 1048576.0, g.origin().x, g.origin().y,
                 g.origin().z, g.spacing().x, g.spacing().y, g.spacing().z,
-                !drawn ? ", a data field (no iso-surface: it colours others, is not drawn)"
+                !drawn ? ", a data field (no iso-surface or slice: it colours others, is not drawn)"
                 : vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
     for (const std::string& note : vi.notes) std::printf("    %s\n", note.c_str());
     // Where the values lie, to choose iso values by: the range and a few quantiles.
@@ -88,6 +89,10 @@ int info(const std::string& path, const SceneOverrides& overrides) {
                     100.0 * double(si.surface->activeBricks().size()) / double(std::max<size_t>(1, si.surface->totalBricks())),
                     si.surface->bytes() / 1048576.0, world.materials()[si.material].name.c_str(),
                     si.surface->activeBricks().empty() ? " (empty: not built)" : "");
+    for (const SliceInfo& sl : world.slices())
+      if (sl.volume == int(v))
+        std::printf("    slice: %zu triangles, %s over [%g, %g]%s\n", sl.triangles, sl.map.name().c_str(), sl.lo, sl.hi,
+                    sl.emit ? ", emitting (unlit)" : "");
     for (const SurfaceInfo& si : world.surfaces())
       if (si.volume == int(v) && si.colorBy)
         std::printf("    iso-surface %g coloured by %s through %s over [%g, %g]\n", si.iso, si.colorBy->fieldName.c_str(),

@@ -54,6 +54,16 @@ struct ColorByDesc {
   Vec3d nanColor{0.5, 0.5, 0.5};  // sRGB, where the field has no value (outside its grid)
 };
 
+// A slice plane through a volume ("slices"): the part of the plane inside the grid, an opaque
+// surface coloured by a colour map of the volume's values there.
+struct SliceDesc {
+  std::string where;      // JSON path, for messages
+  Vec3d point, normal;    // world space; the normal is not zero
+  ColorMap map;
+  std::optional<double> lo, hi;  // the range mapped; default: the volume's value range
+  bool emit = false;      // an unlit slice: it emits the map's colour and reflects nothing
+};
+
 struct IsoSurfaceDesc {
   double value = 0;
   std::optional<Vec3d> color;  // shown by the eyelight integrator when there is no material
@@ -107,6 +117,7 @@ struct VolumeDesc {
   Transform transform;  // applied after origin/spacing place the grid
   std::string name;     // "name": how "color_by" refers to it (empty: none)
   std::vector<IsoSurfaceDesc> isosurfaces;  // none: a data field that colours others, not drawn
+  std::vector<SliceDesc> slices;
 };
 
 struct RenderSettings {

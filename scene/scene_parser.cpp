@@ -543,6 +543,46 @@ ColorByDesc parseColorBy(ObjectReader r) {
   return c;
 }
 
+// "slices[k]": {"axis": "x"|"y"|"z", "position": p} or {"point": [...], "normal": [...]} (world
+// space), "map" (default grey), "range" (default: the volume's values), "emit" (false).
+SliceDesc parseSlice(ObjectReader r) {
+  SliceDesc s;
+  s.where = r.path();
+  const bool byAxis = r.has("axis") || r.has("position"), byPlane = r.has("point") || r.has("normal");
+  if (byAxis == byPlane) r.fail(r.path(), "a slice needs either \"axis\" and \"position\" or \"point\" and \"normal\"");
+  if (byAxis) {
+    if (!r.has("axis")) r.fail(r.at("axis"), "required key is missing (x, y or z)");
+    if (!r.has("position")) r.fail(r.at("position"), "required key is missing (the plane's world coordinate on that axis)");
+    const std::string axis = r.choice("axis", "z", {"x", "y", "z"});
+    const int a = axis[0] - 'x';
+    s.normal = {0, 0, 0};
+    s.normal[a] = 1;
+    s.point = {0, 0, 0};
+    s.point[a] = r.number("position", 0, -1e30, 1e30);
+  } else {
+    if (!r.has("point")) r.fail(r.at("point"), "required key is missing");
+    if (!r.has("normal")) r.fail(r.at("normal"), "required key is missing");
+    s.point = *r.vec3("point");
+    s.normal = *r.vec3("normal");
+    const double len = length(s.normal);
+    if (!(len > 1e-30) || !std::isfinite(len)) r.fail(r.at("normal"), "the normal has zero length");
+    s.normal = s.normal / len;
+    for (int a = 0; a < 3; ++a)
+      if (!(std::fabs(s.point[a]) <= 1e30)) r.fail(r.at("point"), "the point is not finite");
+  }
+  const std::string map = r.string("map", "grey");
+  if (!ColorMap::named(map, s.map)) r.fail(r.at("map"), "unknown colour map '" + map + "' (known: " + ColorMap::list() + ")");
+  if (const Json* range = r.get("range")) {
+    if (!range->is_array() || range->size() != 2) r.fail(r.at("range"), "expected [low, high]");
+    s.lo = r.toNumber((*range)[0], r.at("range") + "/0");
+    s.hi = r.toNumber((*range)[1], r.at("range") + "/1");
+    if (!(*s.lo < *s.hi)) r.fail(r.at("range"), "an empty range: low must be below high");
+  }
+  s.emit = r.boolean("emit", false);
+  r.finish();
+  return s;
+}
+
 SceneDesc parseSceneJson(const Json& root, const std::string& path) {
   const fs::path dir = fs::path(path).parent_path();
   SceneDesc scene;
@@ -625,7 +665,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
                       {"file", "procedural", "dims", "type", "endian", "series", "grid", "origin", "spacing", "transform",
-                       "name", "isosurfaces"});
+                       "name", "isosurfaces", "slices"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
@@ -711,6 +751,12 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
                                                                                         {"field", "map", "range", "nan_color"}));
         ir.finish();
         v.isosurfaces.push_back(iso);
+      }
+      if (const Json* slices = vr.get("slices")) {
+        if (!slices->is_array() || slices->size() > 64) vr.fail(vr.at("slices"), "expected an array of at most 64 slices");
+        for (size_t k = 0; k < slices->size(); ++k)
+          v.slices.push_back(parseSlice(ObjectReader((*slices)[k], vr.at("slices") + "/" + std::to_string(k), path,
+                                                     {"axis", "position", "point", "normal", "map", "range", "emit"})));
       }
       vr.finish();
       scene.volumes.push_back(std::move(v));

@@ -125,6 +125,7 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   try {
     loadMeshes(scene);
     buildVolumes(scene, intersector, sameVolumes);
+    buildSlices(scene);
     // "color_by": the sampled volume's placement (it may come later in the list) and the NaN colour.
     for (SurfaceInfo& s : m_surfaces) {
       if (!s.colorBy) continue;
@@ -252,6 +253,19 @@ int World::gltfMaterial(size_t model, int index) {
   return slot;
 }
 
+RTCGeometry World::triangleGeometry(const TriangleMesh& mesh) const {
+  RTCGeometry geometry = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                        3 * sizeof(float), mesh.positions.size()));
+  for (size_t i = 0; i < mesh.positions.size(); ++i) {
+    v[3 * i] = mesh.positions[i].x; v[3 * i + 1] = mesh.positions[i].y; v[3 * i + 2] = mesh.positions[i].z;
+  }
+  auto* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                             3 * sizeof(unsigned), mesh.triangleCount()));
+  std::copy(mesh.indices.begin(), mesh.indices.end(), idx);
+  return geometry;
+}
+
 void World::loadMeshes(const SceneDesc& scene) {
   std::vector<PendingAreaLight>& pending = m_pendingAreaLights;
   for (size_t d = 0; d < scene.meshes.size(); ++d) {
@@ -293,18 +307,6 @@ void World::loadMeshes(const SceneDesc& scene) {
     auto materialOf = [&](const TriangleMesh& prim) {
       return desc.material.empty() ? gltfMaterial(modelIndex, prim.material) : materialFor(scene, desc.material);
     };
-    auto createTriangles = [&](const TriangleMesh& mesh) {
-      RTCGeometry geometry = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_TRIANGLE);
-      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                            3 * sizeof(float), mesh.positions.size()));
-      for (size_t i = 0; i < mesh.positions.size(); ++i) {
-        v[3 * i] = mesh.positions[i].x; v[3 * i + 1] = mesh.positions[i].y; v[3 * i + 2] = mesh.positions[i].z;
-      }
-      auto* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                                 3 * sizeof(unsigned), mesh.triangleCount()));
-      std::copy(mesh.indices.begin(), mesh.indices.end(), idx);
-      return geometry;
-    };
 
     for (const GltfInstance& inst : g.instances) {
       const Transform toWorld = desc.transform * inst.toFile;
@@ -335,7 +337,7 @@ void World::loadMeshes(const SceneDesc& scene) {
             worldTriangles(*baked, Transform(), true, pending.back().triangles, pending.back().uvs);
             pending.back().material = rec.material;
           }
-          attach(m_scene, createTriangles(*baked), m_top, rec);
+          attach(m_scene, triangleGeometry(*baked), m_top, rec);
           m_meshStore.push_back(std::move(baked));
         }
         continue;
@@ -347,7 +349,7 @@ void World::loadMeshes(const SceneDesc& scene) {
         for (const TriangleMesh& prim : prims) {
           m_meshStore.push_back(std::make_unique<TriangleMesh>(prim));
           stored[inst.mesh].push_back(m_meshStore.back().get());
-          RTCGeometry geometry = createTriangles(prim);
+          RTCGeometry geometry = triangleGeometry(prim);
           rtcCommitGeometry(geometry);
           rtcAttachGeometry(shared[inst.mesh], geometry);
           rtcReleaseGeometry(geometry);
@@ -829,6 +831,7 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   const Vec3f errObj = (absv(p0 * b0) + absv(p1 * b1) + absv(p2 * b2)) * gamma(7);
   Vec3f ng = cross(p1 - p0, p2 - p0);
   hit.mesh = rec.meshDesc;
+  hit.slice = rec.slice;
   hit.light = rec.light;
   hit.triangle = rec.light >= 0 ? int(prim) : -1;
   hit.b1 = b1;
@@ -920,18 +923,91 @@ bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
   return r.tfar < 0;
 }
 
+// Each slice's polygon: the plane cut through the volume's grid box (a parallelepiped in world
+// space), its corners in order around their centre, as a triangle fan in world space.
+void World::buildSlices(const SceneDesc& scene) {
+  for (size_t v = 0; v < scene.volumes.size(); ++v)
+    for (const SliceDesc& desc : scene.volumes[v].slices) {
+      const VolumeInfo& vol = m_volumes[v];
+      const Grid& grid = *vol.grid;
+      const Vec3d extent = Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
+      Vec3d corner[8];
+      double d[8];
+      for (int c = 0; c < 8; ++c) {
+        const Vec3d object = grid.origin() + Vec3d{c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0};
+        corner[c] = vol.transform.point(object);
+        d[c] = dot(corner[c] - desc.point, desc.normal);
+      }
+      std::vector<Vec3d> points;
+      for (int c = 0; c < 8; ++c)
+        if (d[c] == 0) points.push_back(corner[c]);
+      for (int c = 0; c < 8; ++c)
+        for (int bit : {1, 2, 4})
+          if (!(c & bit) && ((d[c] < 0 && d[c | bit] > 0) || (d[c] > 0 && d[c | bit] < 0)))
+            points.push_back(corner[c] + (corner[c | bit] - corner[c]) * (d[c] / (d[c] - d[c | bit])));
+      if (points.size() < 3) throw InputError(scene.path, desc.where, "the plane does not cut the volume's grid");
+      Vec3d centre{0, 0, 0};
+      for (const Vec3d& p : points) centre = centre + p;
+      centre = centre / double(points.size());
+      // Order by angle in the plane (u, v: any basis of it).
+      const Vec3d n = desc.normal;
+      const Vec3d u = normalize(std::fabs(n.x) < 0.9 ? cross(n, Vec3d{1, 0, 0}) : cross(n, Vec3d{0, 1, 0}));
+      const Vec3d w = cross(n, u);
+      std::sort(points.begin(), points.end(), [&](const Vec3d& a, const Vec3d& b) {
+        return std::atan2(dot(a - centre, w), dot(a - centre, u)) < std::atan2(dot(b - centre, w), dot(b - centre, u));
+      });
+      auto mesh = std::make_unique<TriangleMesh>();
+      mesh->positions.push_back(Vec3f(centre));
+      for (const Vec3d& p : points) mesh->positions.push_back(Vec3f(p));
+      for (uint32_t i = 0; i < points.size(); ++i)
+        mesh->indices.insert(mesh->indices.end(), {0u, 1 + i, 1 + uint32_t((i + 1) % points.size())});
+      SliceInfo info;
+      info.volume = int(v);
+      info.map = desc.map;
+      info.lo = desc.lo ? *desc.lo : double(vol.bricks->minValue());
+      info.hi = desc.hi ? *desc.hi : double(vol.bricks->maxValue());
+      if (!(info.hi > info.lo)) info.hi = info.lo + 1;  // a constant volume: one colour
+      info.emit = desc.emit;
+      info.worldToObject = vol.transform.inverse();
+      info.triangles = mesh->triangleCount();
+      Material m;
+      m.name = desc.where;
+      m.type = desc.emit ? MaterialType::Emissive : MaterialType::Diffuse;
+      m.twoSided = true;
+      m.emission = {1, 1, 1};  // stands for the map's colour (World::emitted)
+      m_materials.push_back(m);
+      GeometryRecord rec;
+      rec.mesh = mesh.get();
+      rec.material = int(m_materials.size() - 1);
+      rec.slice = int(m_slices.size());
+      attach(m_scene, triangleGeometry(*mesh), m_top, rec);
+      m_meshStore.push_back(std::move(mesh));
+      m_slices.push_back(std::move(info));
+    }
+}
+
+double World::sampleVolume(int volume, const Transform& worldToObject, const Vec3d& world, bool clamp) const {
+  const VolumeInfo& vol = m_volumes[size_t(volume)];
+  const Grid& grid = *vol.grid;
+  const Vec3d object = vol.transform.isIdentity() ? world : worldToObject.point(world);
+  const Vec3d g = (object - grid.origin()) / grid.spacing();
+  const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
+  // Outside the grid (beyond rounding of the point): no value (Grid::interpolate clamps).
+  const double slack = 1e-9 * (std::max({std::fabs(g.x), std::fabs(g.y), std::fabs(g.z)}) + 1);
+  if (!clamp)
+    for (int a = 0; a < 3; ++a)
+      if (!(g[a] >= -slack && g[a] <= hi[a] + slack)) return NAN;
+  return grid.interpolate(g);
+}
+
 double World::colorValue(const SurfaceInfo& s, const Vec3d& world) const {
   const ColorByDesc& c = *s.colorBy;
-  const VolumeInfo& vol = m_volumes[size_t(c.volume < 0 ? s.volume : c.volume)];
+  if (c.volume >= 0) return sampleVolume(c.volume, s.colorWorldToObject, world, false);
+  const VolumeInfo& vol = m_volumes[size_t(s.volume)];
   const Grid& grid = *vol.grid;
   const Vec3d object = vol.transform.isIdentity() ? world : s.colorWorldToObject.point(world);
   const Vec3d g = (object - grid.origin()) / grid.spacing();
-  const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
-  // Outside the field's grid (beyond rounding of the hit's position): no value.
-  const double slack = 1e-9 * (std::max({std::fabs(g.x), std::fabs(g.y), std::fabs(g.z)}) + 1);
-  for (int a = 0; a < 3; ++a)
-    if (!(g[a] >= -slack && g[a] <= hi[a] + slack)) return NAN;
-  if (c.volume >= 0) return grid.interpolate(g);
+  if (!std::isfinite(sampleVolume(s.volume, s.colorWorldToObject, world, false))) return NAN;
   // The gradient's magnitude in world units: per grid step to per object unit, then the
   // inverse transpose of the volume's placement.
   const Vec3d d = grid.smoothGradient(g) / grid.spacing();
@@ -943,6 +1019,11 @@ double World::colorValue(const SurfaceInfo& s, const Vec3d& world) const {
 }
 
 Vec3f World::albedo(const Hit& hit) const {
+  if (hit.slice >= 0) {  // a slice: its map of the volume's value, or black if it only emits
+    const SliceInfo& s = m_slices[size_t(hit.slice)];
+    if (s.emit) return {0, 0, 0};
+    return s.map.linear(float((sampleVolume(s.volume, s.worldToObject, hit.position64, true) - s.lo) / (s.hi - s.lo)));
+  }
   if (hit.surface >= 0) {
     const SurfaceInfo& s = m_surfaces[size_t(hit.surface)];
     if (s.colorBy) {
@@ -984,6 +1065,10 @@ Bsdf World::bsdf(const Hit& hit) const {
 Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   const Material& m = m_materials[hit.material];
   if (!m.emits()) return {0, 0, 0};
+  if (hit.slice >= 0) {  // an unlit slice shows its map on both sides
+    const SliceInfo& s = m_slices[size_t(hit.slice)];
+    return s.map.linear(float((sampleVolume(s.volume, s.worldToObject, hit.position64, true) - s.lo) / (s.hi - s.lo)));
+  }
   if (hit.surface < 0 && hit.light >= 0) return m_lights[hit.light].emitted(hit.triangle, hit.b1, hit.b2, wo);
   // Emissive iso-surfaces: front side is out of the solid.
   if (!m.twoSided && dot(wo, hit.normal) <= 0) return {0, 0, 0};

@@ -35,6 +35,7 @@ struct Hit {
   int mesh = -1;      // scene mesh index, or -1 for an iso-surface
   int light = -1;     // area light index of an emissive triangle, or -1
   int triangle = -1;  // triangle index inside that area light
+  int slice = -1;     // a slice plane (World::slices()), or -1
   float b1 = 0, b2 = 0;  // barycentrics of a triangle hit
   float spawnOffset = 0;  // iso-surfaces: how far a ray leaving the hit starts off it
   Vec3f incoming;        // direction of the ray that made the hit
@@ -53,6 +54,16 @@ struct SurfaceInfo {
   std::optional<ColorByDesc> colorBy;
   Transform colorWorldToObject;  // of the volume sampled (its grid's object space)
   Vec3f nanColor;                // colorBy->nanColor in linear light
+};
+
+// A slice plane of a volume as built: its polygon inside the grid is a mesh in the scene.
+struct SliceInfo {
+  int volume = 0;
+  ColorMap map;
+  double lo = 0, hi = 1;
+  bool emit = false;
+  Transform worldToObject;  // of the volume
+  size_t triangles = 0;
 };
 
 struct VolumeInfo {
@@ -128,6 +139,7 @@ class World {
   int pickLight(float u, float& probability) const;
   float lightProbability(int light) const { return m_lightPick.probability(light); }
   // The light whose emission a hit shows (an emissive triangle or iso-surface), or -1.
+  const std::vector<SliceInfo>& slices() const { return m_slices; }
   int lightOf(const Hit& hit) const { return hit.surface >= 0 ? m_surfaces[hit.surface].light : hit.light; }
   const std::vector<std::string>& warnings() const { return m_warnings; }
   double loadSeconds() const { return m_loadSeconds; }
@@ -141,6 +153,7 @@ class World {
     int meshDesc = -1;
     int light = -1;
     int instance = -1;  // index into m_instanceRecords for an Embree instance
+    int slice = -1;     // index into m_slices
     Transform toWorld;  // of the instance (mesh stored in object space)
     bool identity = true;
   };
@@ -153,6 +166,10 @@ class World {
   void release();
   void loadMeshes(const SceneDesc& scene);
   void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes);
+  void buildSlices(const SceneDesc& scene);
+  RTCGeometry triangleGeometry(const TriangleMesh& mesh) const;  // Embree triangles of `mesh`
+  // The value of volume `volume` at a world point (NaN outside its grid unless `clamp`).
+  double sampleVolume(int volume, const Transform& worldToObject, const Vec3d& world, bool clamp) const;
   void buildLights(const SceneDesc& scene);
   void addIsoSurfaceLight(int surface);
   int materialFor(const SceneDesc& scene, const std::string& name);
@@ -188,6 +205,7 @@ class World {
   std::vector<MeshInfo> m_meshInfo;
   std::vector<VolumeInfo> m_volumes;
   std::vector<SurfaceInfo> m_surfaces;
+  std::vector<SliceInfo> m_slices;
   std::vector<Material> m_materials;
   std::vector<Texture> m_textures;
   std::vector<std::tuple<size_t, int, bool>> m_textureKeys;  // (model, glTF texture, sRGB)

@@ -213,6 +213,68 @@ TEST(Cli, ColorByDataSamplesTheOtherVolumeAtTheHit) {
   }
 }
 
+// Slices: the plane through a ramp volume (value 10 + 2 x, on a placed grid) shows the map's
+// colour of the value where each ray meets it (the albedo AOV at the centre pixel); an emitting
+// slice shows that colour as light; the polygon ends at the grid (a ray past it misses); bad
+// slices are refused by place.
+TEST(Cli, SlicesShowTheVolumesValuesOnThePlane) {
+  const std::string dir = test::scratchDir();
+  std::vector<float> ramp;
+  for (int k = 0; k < 3; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 5; ++i) ramp.push_back(float(8 * i + 6));  // 10 + 2 x, x = 4 i - 2
+  {
+    std::ofstream out(dir + "/ramp.raw", std::ios::binary);
+    out.write(reinterpret_cast<const char*>(ramp.data()), std::streamsize(ramp.size() * sizeof(float)));
+  }
+  ColorMap magma;
+  ASSERT_TRUE(ColorMap::named("magma", magma));
+  auto toSrgb = [](float v) { return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1 / 2.4f) - 0.055f; };
+  auto sceneAt = [&](double x, const std::string& slice) {
+    char camera[160];
+    std::snprintf(camera, sizeof camera, R"("camera": {"position": [%g, 8, 40], "look_at": [%g, 8, 7], "fov": 0.25})", x, x);
+    return std::string("{") + camera + R"(, "film": {"width": 33, "height": 33}, "integrator": {"type": "eyelight", "spp": 1},
+      "volumes": [{"file": "ramp.raw", "dims": [5, 4, 3], "type": "float32", "spacing": [4, 5, 7], "origin": [-3, -1, -2],
+                   "transform": {"translate": [1, 2, 3]}, "slices": [)" + slice + "]}]}";
+  };
+  auto centre = [&](const std::string& layer, std::vector<std::string>& channels, const std::vector<float>& pixels) {
+    const size_t n = channels.size(), at = (16 * 33 + 16) * n;
+    const size_t c = size_t(std::find(channels.begin(), channels.end(), layer) - channels.begin());
+    return c + 2 < n ? Vec3f{pixels[at + c], pixels[at + c + 1], pixels[at + c + 2]} : Vec3f{-1, -1, -1};
+  };
+  for (const double x : {-1.0, 3.3, 13.0, 20.0}) {
+    // Lit (the albedo AOV), and unlit (the colour itself is the light the camera sees).
+    for (const bool emit : {false, true}) {
+      test::writeText(dir + "/s.json", sceneAt(x, std::string(R"({"axis": "z", "position": 7, "map": "magma", "range": [10, 38], "emit": )") +
+                                                      (emit ? "true" : "false") + "}"));
+      const auto r = runIsotrace("render " + dir + "/s.json -o " + dir + "/c.exr --aov albedo --quiet");
+      ASSERT_EQ(r.status, 0) << r.err;
+      std::vector<std::string> channels;
+      const std::vector<float> pixels = readExr(dir + "/c.exr", &channels);
+      const Vec3f colour = centre(emit ? "R" : "albedo.R", channels, pixels);
+      if (x > 14) {  // the grid covers world x in [-2, 14]: nothing there
+        EXPECT_EQ(colour, Vec3f(0, 0, 0)) << "x " << x << (emit ? " emitting" : "");
+        continue;
+      }
+      const Vec3f expected = magma.srgb(float((10 + 2 * x - 10) / 28));
+      for (int c = 0; c < 3; ++c)
+        EXPECT_NEAR(toSrgb(colour[c]), expected[c], 1.0 / 255) << "x " << x << ", channel " << c << (emit ? " emitting" : "");
+    }
+  }
+  for (const auto& [slice, fragment] : std::vector<std::pair<std::string, std::string>>{
+           {R"({"axis": "w", "position": 7})", "/volumes/0/slices/0/axis: unknown value 'w'"},
+           {R"({"axis": "z"})", "/volumes/0/slices/0/position: required key is missing"},
+           {R"({"point": [0, 0, 7], "normal": [0, 0, 0]})", "/volumes/0/slices/0/normal: the normal has zero length"},
+           {R"({"axis": "z", "position": 7, "normal": [0, 0, 1]})", "/volumes/0/slices/0: a slice needs either"},
+           {R"({"axis": "z", "position": 99})", "/volumes/0/slices/0: the plane does not cut the volume's grid"},
+           {R"({"axis": "z", "position": 7, "map": "jet"})", "/volumes/0/slices/0/map: unknown colour map 'jet'"},
+           {R"({"axis": "z", "position": 7, "range": [3, 3]})", "/volumes/0/slices/0/range: an empty range"},
+           {R"({"axis": "z", "position": 7, "emit": 1})", "/volumes/0/slices/0/emit: expected true or false"}}) {
+    test::writeText(dir + "/s.json", sceneAt(0, slice));
+    expectBadInput(dir, dir + "/s.json", fragment);
+  }
+}
+
 // Reads an 8-bit image into bytes; its channel count in `channels`.
 std::vector<uint8_t> readBytes(const std::string& path, int& channels, int& width) {
   auto in = OIIO::ImageInput::open(path);

@@ -29,6 +29,7 @@ render() { "$bin" render "$@" --quiet > /dev/null; }
 render examples/default.json --resolution 320x240 --spp 96 -o $out/default.png
 render examples/quick_look.json --resolution 320x240 --spp 16 -o $out/quick_look.png
 render examples/color_by.json --resolution 320x240 --spp 64 -o $out/color_by.png
+render examples/mri_slices.json --resolution 320x240 --spp 32 -o $out/mri_slices.png
 render examples/cornell_torus.json --resolution 320x320 --spp 256 -o $out/cornell_torus.png
 render examples/mri_brain.json --resolution 320x240 --spp 64 -o $out/mri_brain.png
 render examples/smoke.json --resolution 240x320 --spp 64 -o $out/smoke.png
