@@ -29,7 +29,7 @@ struct RenderFlags {
   int spp = 0, threads = -1, maxDepth = 0, frames = 1;
   std::optional<double> orbit;
   long long seed = -1;
-  bool quiet = false, alpha = false, allowLarge = false;
+  bool quiet = false, alpha = false, allowLarge = false, colorbar = false;
   std::optional<double> exposure, clamp, adaptive;
   SceneOverrides overrides;
 };
@@ -48,7 +48,33 @@ DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
                  output.c_str());
   if (f.alpha && imageFormatFor(output) == ImageFormat::Jpeg)
     throw InputError("--alpha", "", "JPEG has no alpha channel: write .png or .exr");
+  if (f.colorbar) {
+    if (imageFormatFor(output) == ImageFormat::Exr)
+      std::fprintf(stderr, "isotrace: warning: --colorbar draws under PNG and JPEG images; %s stays data\n", output.c_str());
+    d.font = legendFont();
+    if (d.font.empty())
+      throw InputError("--colorbar", "", "no font for the legend's text (DejaVu Sans: install fonts-dejavu-core; scripts/setup.sh does)");
+  }
   return d;
+}
+
+// --colorbar: one legend per distinct map of the scene ("color_by" surfaces, slices), with the
+// ranges the World resolved (a slice's default range is its volume's values).
+std::vector<Legend> legendsOf(const World& world, const SceneDesc& scene) {
+  std::vector<Legend> legends;
+  auto add = [&](const std::string& title, const ColorMap& map, double lo, double hi) {
+    for (const Legend& l : legends)
+      if (l.title == title && l.map.name() == map.name() && l.lo == lo && l.hi == hi) return;
+    legends.push_back({title, map, lo, hi});
+  };
+  for (const SurfaceInfo& s : world.surfaces())
+    if (s.colorBy) add(s.colorBy->fieldName, s.colorBy->map, s.colorBy->lo, s.colorBy->hi);
+  for (const SliceInfo& s : world.slices()) {
+    const VolumeDesc& v = scene.volumes[size_t(s.volume)];
+    add(!v.name.empty() ? v.name : v.field ? "procedural field" : std::filesystem::path(v.file).filename().string(), s.map,
+        s.lo, s.hi);
+  }
+  return legends;
 }
 
 // Flags override the scene file; each is checked here so that a bad one is an InputError.
@@ -268,6 +294,14 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   std::error_code ec;
   if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
   r.display = displayFlags(flags, r.output);  // bad names and values before any work
+  if (flags.colorbar) {
+    bool coloured = false;
+    for (const VolumeDesc& v : r.scene.volumes) {
+      coloured = coloured || !v.slices.empty();
+      for (const IsoSurfaceDesc& iso : v.isosurfaces) coloured = coloured || iso.colorBy;
+    }
+    if (!coloured) throw InputError("--colorbar", "", "the scene colours nothing by data (no \"color_by\" and no slice)");
+  }
   const RenderSettings& s = r.scene.settings;
   r.options.rayFlow = s.rayFlow;
   r.options.spp = s.spp;
@@ -298,7 +332,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
   const FrameSequence& seq = setup.seq;
   const RenderSettings& s = scene.settings;
   const std::string& output = setup.output;
-  const DisplaySettings& display = setup.display;
+  DisplaySettings display = setup.display;
   RenderOptions options = setup.options;
   options.progress = options.progress && job.rank() == 0;
   RenderResult total;
@@ -315,6 +349,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     }
     if (!warned && job.rank() == 0)
       for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
+    if (flags.colorbar) display.legends = legendsOf(*world, scene);
     warned = true;
     const double degrees = seq.orbit * double(frame) / double(seq.frames);
     Camera camera(orbitCamera(world->camera(), degrees), s.width, s.height);
@@ -541,6 +576,7 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_flag("--quiet", f.quiet, "print only the output path");
   cmd->add_option("--exposure", f.exposure, "PNG/JPEG: scale radiance by 2^EV before tone mapping (default 0)");
   cmd->add_option("--tonemap", f.tonemap, "PNG/JPEG: clamp (default), aces or filmic");
+  cmd->add_flag("--colorbar", f.colorbar, "PNG/JPEG: a legend below the image for each colour map (color_by, slices): the map, its range, the field's name");
   cmd->add_flag("--alpha", f.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
   cmd->add_option("--clamp", f.clamp, "clip each sample's indirect radiance to X (biased; 0: off, the default)");
   cmd->add_option("--adaptive", f.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");

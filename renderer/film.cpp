@@ -1,5 +1,7 @@
 #include "renderer/film.h"
 
+#include <OpenImageIO/imagebuf.h>
+#include <OpenImageIO/imagebufalgo.h>
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
@@ -104,6 +106,56 @@ std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const Display
   return bytes;
 }
 
+std::string legendFont() {
+  for (const char* path : {"/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf", "/usr/share/fonts/TTF/DejaVuSans.ttf"})
+    if (fs::exists(path)) return path;
+  return "";
+}
+
+namespace {
+
+constexpr int kLegendHeight = 40;  // pixels per colour bar: the bar, then its labels
+
+// The legends' strip (width w, kLegendHeight per legend), 8-bit sRGB with `channels` channels
+// (alpha opaque): a dark ground, each map as a bar, its end values under its ends and the
+// field's name between them.
+std::vector<uint8_t> legendStrip(const DisplaySettings& display, int w, int channels) {
+  const int h = kLegendHeight * int(display.legends.size());
+  OIIO::ImageBuf strip(OIIO::ImageSpec(w, h, 3, OIIO::TypeDesc::FLOAT));
+  const float ground[3] = {0.08f, 0.08f, 0.08f};
+  OIIO::ImageBufAlgo::fill(strip, ground);
+  const int margin = std::max(4, w / 40);
+  const int size = std::clamp(w / 40, 9, 16);
+  for (size_t k = 0; k < display.legends.size(); ++k) {
+    const Legend& l = display.legends[k];
+    const int top = int(k) * kLegendHeight + 4;
+    for (int x = margin; x < w - margin; ++x) {
+      const Vec3f c = l.map.srgb(float(x - margin) / float(std::max(1, w - 2 * margin - 1)));
+      const float rgb[3] = {c.x, c.y, c.z};
+      for (int y = top; y < top + 12; ++y) strip.setpixel(x, y, rgb, 3);
+    }
+    const float white[3] = {0.92f, 0.92f, 0.92f};
+    char lo[32], hi[32];
+    std::snprintf(lo, sizeof lo, "%.4g", l.lo);
+    std::snprintf(hi, sizeof hi, "%.4g", l.hi);
+    const int baseline = top + 14 + size;
+    bool ok = OIIO::ImageBufAlgo::render_text(strip, margin, baseline, lo, size, display.font, white);
+    ok = ok && OIIO::ImageBufAlgo::render_text(strip, w - margin, baseline, hi, size, display.font, white,
+                                               OIIO::ImageBufAlgo::TextAlignX::Right);
+    ok = ok && OIIO::ImageBufAlgo::render_text(strip, w / 2, baseline, l.title, size, display.font, white,
+                                               OIIO::ImageBufAlgo::TextAlignX::Center);
+    if (!ok) throw InputError("--colorbar", "", "cannot draw the legend's text: " + strip.geterror());
+  }
+  std::vector<uint8_t> bytes(size_t(w) * h * channels, 255);
+  std::vector<float> rgb(size_t(w) * h * 3);
+  strip.get_pixels(strip.roi(), OIIO::TypeDesc::FLOAT, rgb.data());
+  for (size_t p = 0; p < size_t(w) * h; ++p)
+    for (int ch = 0; ch < 3; ++ch) bytes[p * channels + ch] = uint8_t(std::lround(std::clamp(rgb[p * 3 + ch], 0.f, 1.f) * 255));
+  return bytes;
+}
+
+}  // namespace
+
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata, const DisplaySettings& display) {
   const ImageFormat format = imageFormatFor(path);
@@ -116,6 +168,8 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
                          target.extension().string());
   const int w = film.width(), h = film.height();
   const bool exr = format == ImageFormat::Exr;
+  // PNG and JPEG with legends: the image, then their strip below it.
+  const int legendRows = exr ? 0 : kLegendHeight * int(display.legends.size());
   const bool alpha = !film.alpha().empty() && format != ImageFormat::Jpeg;
   int channels = alpha ? 4 : 3;
   std::vector<std::string> names = {"R", "G", "B"};
@@ -126,7 +180,7 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         names.push_back(layer.name + "." + c);
         ++channels;
       }
-  OIIO::ImageSpec spec(w, h, channels, exr ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
+  OIIO::ImageSpec spec(w, h + legendRows, channels, exr ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
   spec.channelnames = names;
   for (const auto& [key, value] : metadata) spec.attribute(key, value);
   std::vector<float> floats;
@@ -144,7 +198,11 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
       }
   } else {
     if (alpha) spec.alpha_channel = 3;
-    bytes.resize(size_t(w) * h * channels);
+    bytes.resize(size_t(w) * (h + legendRows) * channels);
+    if (legendRows > 0) {
+      const std::vector<uint8_t> strip = legendStrip(display, w, channels);
+      std::copy(strip.begin(), strip.end(), bytes.begin() + std::ptrdiff_t(size_t(w) * h * channels));
+    }
     const float scale = float(std::exp2(display.exposure));
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {

@@ -9,6 +9,8 @@
 
 #include "volume/vec3.h"
 
+#include "scene/colormap.h"
+
 namespace iso {
 
 class Film {
@@ -52,10 +54,21 @@ enum class ImageFormat { Exr, Png, Jpeg };
 
 // How linear radiance becomes an 8-bit image (PNG, JPEG); EXR stays linear, untouched.
 enum class Tonemap { Clamp, Aces, Filmic };
+// A colour bar under a PNG or JPEG (--colorbar): the map, its range's end values, the field's name.
+struct Legend {
+  std::string title;
+  ColorMap map;
+  double lo = 0, hi = 1;
+};
+
 struct DisplaySettings {
   double exposure = 0;  // EV: radiance times 2^exposure before the curve
   Tonemap tonemap = Tonemap::Clamp;
+  std::vector<Legend> legends;  // drawn in a strip below the image, one bar each
+  std::string font;             // the legends' TrueType font (legendFont())
 };
+// The font legends are written in (DejaVu Sans, Debian's fonts-dejavu-core); empty if absent.
+std::string legendFont();
 // "clamp", "aces", "filmic"; false if unknown.
 bool parseTonemap(const std::string& name, Tonemap& tonemap);
 const char* tonemapName(Tonemap tonemap);

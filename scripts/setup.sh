@@ -9,7 +9,7 @@
 # (libopenmpi-dev, openmpi-bin: mpirun) renders on many ranks; libcpp-httplib-dev serves
 # `isotrace view`, whose page the tests drive in Debian's chromium with chromium-driver and
 # python3-selenium (no browser is downloaded); stress-ng loads the machine for
-# scripts/soak_tests.sh --loaded.
+# scripts/soak_tests.sh --loaded; fonts-dejavu-core is the font of `render --colorbar`'s legend.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -20,7 +20,7 @@ packages=(build-essential cmake pkg-config
           libopenvdb-dev libboost-iostreams-dev
           libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
           libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium
-          stress-ng)
+          stress-ng fonts-dejavu-core)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -287,6 +287,46 @@ std::vector<uint8_t> readBytes(const std::string& path, int& channels, int& widt
   return bytes;
 }
 
+// --colorbar: a strip below a PNG/JPEG with one bar per colour map; the image above it is the
+// image without the flag; the bar runs through the map from end to end. A scene with nothing
+// coloured by data refuses the flag.
+TEST(Cli, ColorbarDrawsEachMapBelowTheImage) {
+  const std::string dir = test::scratchDir();
+  const std::string path = dir + "/s.json";
+  test::writeText(path, R"({"camera": {"position": [0, 0, 4]}, "film": {"width": 160, "height": 90},
+    "integrator": {"type": "eyelight", "spp": 1},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [16, 16, 16]},
+                 "isosurfaces": [{"value": 0.7, "color_by": {"field": "gradient_magnitude", "map": "plasma", "range": [0, 2]}}],
+                 "slices": [{"axis": "z", "position": 0.2, "map": "viridis", "range": [0, 1]}]}]})");
+  ASSERT_EQ(runIsotrace("render " + path + " -o " + dir + "/plain.png --quiet").status, 0);
+  const auto r = runIsotrace("render " + path + " -o " + dir + "/bar.png --quiet --colorbar");
+  ASSERT_EQ(r.status, 0) << r.err;
+  int channels = 0, width = 0, plainChannels = 0, plainWidth = 0;
+  const std::vector<uint8_t> plain = readBytes(dir + "/plain.png", plainChannels, plainWidth);
+  const std::vector<uint8_t> bar = readBytes(dir + "/bar.png", channels, width);
+  ASSERT_EQ(width, 160);
+  ASSERT_EQ(channels, plainChannels);
+  ASSERT_EQ(bar.size(), size_t(160) * (90 + 2 * 40) * size_t(channels));  // two maps: two bars of 40 rows
+  EXPECT_TRUE(std::equal(plain.begin(), plain.end(), bar.begin())) << "the image above the strip is unchanged";
+  ColorMap plasma, viridis;
+  ASSERT_TRUE(ColorMap::named("plasma", plasma) && ColorMap::named("viridis", viridis));
+  const int margin = 4;  // max(4, 160 / 40)
+  for (const auto& [row, map] : std::vector<std::pair<int, const ColorMap*>>{{90 + 8, &plasma}, {90 + 40 + 8, &viridis}})
+    for (const auto& [x, t] : std::vector<std::pair<int, float>>{{margin, 0.f}, {160 - margin - 1, 1.f}, {80, float(80 - margin) / (160 - 2 * margin - 1)}}) {
+      const Vec3f expected = map->srgb(t);
+      for (int c = 0; c < 3; ++c)
+        EXPECT_NEAR(bar[(size_t(row) * 160 + size_t(x)) * size_t(channels) + size_t(c)], expected[c] * 255, 1.0)
+            << "row " << row << " x " << x << " channel " << c;
+    }
+  ASSERT_EQ(runIsotrace("render " + path + " -o " + dir + "/bar.jpg --quiet --colorbar").status, 0);
+  const auto exr = runIsotrace("render " + path + " -o " + dir + "/bar.exr --quiet --colorbar");
+  EXPECT_EQ(exr.status, 0);
+  EXPECT_NE(exr.err.find("warning: --colorbar draws under PNG and JPEG images"), std::string::npos) << exr.err;
+  test::writeText(path, scene(R"({"procedural": {"field": "sphere", "resolution": [8,8,8]}, "isosurfaces": [{"value": 0.5}]})"));
+  expectBadInput(dir, path + " --colorbar", "--colorbar: the scene colours nothing by data");
+}
+
+
 // Display options: --alpha gives coverage (0 where the camera sees only the sky, 1 on the
 // ball) and keeps the sky out of the colour; --exposure scales before the curve; the curves
 // keep 0 black, rise monotonically and never pass 1; JPEG is written.
