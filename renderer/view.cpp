@@ -119,6 +119,13 @@ class ViewSession {
     std::string label;
     double min, max;
   };
+  // A slice plane: volumes[volume].slices[index], movable along its normal within its grid's
+  // box (min, max: the box's extent along the normal, as dot(point, normal)).
+  struct Slice {
+    int volume, index;
+    std::string label;
+    double min, max;
+  };
   struct Frame {
     uint64_t serial = 0, version = 0;
     int spp = 0;
@@ -158,6 +165,7 @@ class ViewSession {
   ViewOptions m_options;
   int m_width = 0, m_height = 0;
   std::vector<Surface> m_surfaces;
+  std::vector<Slice> m_slices;
 
   std::mutex m_mutex;
   std::condition_variable m_changed, m_framed;
@@ -195,6 +203,18 @@ ViewSession::ViewSession(const std::string& path, const ViewOptions& options) : 
     for (size_t k = 0; k < m_desc.volumes[v].isosurfaces.size(); ++k)
       m_surfaces.push_back({int(v), int(k), name + (m_desc.volumes[v].isosurfaces.size() > 1 ? " #" + std::to_string(k) : ""),
                             double(info.bricks->minValue()), double(info.bricks->maxValue())});
+    for (size_t k = 0; k < m_desc.volumes[v].slices.size(); ++k) {
+      const SliceDesc& slice = m_desc.volumes[v].slices[k];
+      const Grid& grid = *info.grid;
+      const Vec3d extent = Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
+      double lo = INFINITY, hi = -INFINITY;
+      for (int c = 0; c < 8; ++c) {
+        const Vec3d corner = info.transform.point(grid.origin() + Vec3d{c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0});
+        lo = std::min(lo, dot(corner, slice.normal));
+        hi = std::max(hi, dot(corner, slice.normal));
+      }
+      m_slices.push_back({int(v), int(k), name + " slice " + std::to_string(k), lo, hi});
+    }
   }
   const double aspect = double(m_desc.settings.width) / m_desc.settings.height;
   m_width = options.width > 0 ? options.width : 480;
@@ -240,9 +260,21 @@ std::string ViewSession::stateJson() {
   s["surfaces"] = Json::array();
   for (size_t i = 0; i < m_surfaces.size(); ++i) {
     const Surface& f = m_surfaces[i];
+    const IsoSurfaceDesc& iso = m_desc.volumes[size_t(f.volume)].isosurfaces[size_t(f.index)];
     s["surfaces"].push_back({{"index", i}, {"label", f.label}, {"min", f.min}, {"max", f.max},
-                             {"value", m_desc.volumes[size_t(f.volume)].isosurfaces[size_t(f.index)].value},
-                             {"color", hexColour(colourOf(f))}});
+                             {"value", iso.value}, {"color", hexColour(colourOf(f))}});
+    if (iso.colorBy)
+      s["surfaces"].back()["color_by"] = {{"field", iso.colorBy->fieldName}, {"map", iso.colorBy->map.name()},
+                                          {"range", {iso.colorBy->lo, iso.colorBy->hi}}};
+  }
+  s["maps"] = Json::array();
+  for (const std::string& name : ColorMap::names()) s["maps"].push_back(name);
+  s["slices"] = Json::array();
+  for (size_t i = 0; i < m_slices.size(); ++i) {
+    const Slice& f = m_slices[i];
+    const SliceDesc& d = m_desc.volumes[size_t(f.volume)].slices[size_t(f.index)];
+    s["slices"].push_back({{"index", i}, {"label", f.label}, {"min", f.min}, {"max", f.max},
+                           {"position", dot(d.point, d.normal)}, {"map", d.map.name()}});
   }
   s["error"] = m_error;
   return s.dump();
@@ -257,8 +289,47 @@ void ViewSession::apply(const std::string& body) {
   Json doc = m_doc;
   bool rebuild = false;
   for (const auto& [key, value] : change.items()) {
-    if (key != "surface" && key != "value" && key != "color" && key != "integrator" && key != "camera")
-      throw InputError(where, "/" + key, "unknown key (known: surface, value, color, integrator, camera)");
+    if (key != "surface" && key != "value" && key != "color" && key != "color_by" && key != "slice" &&
+        key != "position" && key != "integrator" && key != "camera")
+      throw InputError(where, "/" + key, "unknown key (known: surface, value, color, color_by, slice, position, integrator, camera)");
+  }
+  if (change.contains("slice") != change.contains("position"))
+    throw InputError(where, change.contains("slice") ? "/position" : "/slice", "a slice goes with a position");
+  if (change.contains("slice")) {
+    if (!change["slice"].is_number_integer()) throw InputError(where, "/slice", "expected the index of a slice");
+    const long long index = change["slice"].get<long long>();
+    if (index < 0 || index >= (long long)m_slices.size())
+      throw InputError(where, "/slice", "no slice " + std::to_string(index) + " (the scene has " + std::to_string(m_slices.size()) + ")");
+    const Slice& f = m_slices[size_t(index)];
+    if (!change["position"].is_number()) throw InputError(where, "/position", "expected a number");
+    const double p = change["position"].get<double>();
+    if (!(p >= f.min && p <= f.max))
+      throw InputError(where, "/position", "outside the volume's grid [" + std::to_string(f.min) + ", " + std::to_string(f.max) + "]");
+    Json& slice = doc["volumes"][size_t(f.volume)]["slices"][size_t(f.index)];
+    if (slice.contains("axis")) {
+      slice["position"] = p;
+    } else {  // move the point along the normal
+      const SliceDesc& d = m_desc.volumes[size_t(f.volume)].slices[size_t(f.index)];
+      slice["point"] = vec(d.point + d.normal * (p - dot(d.point, d.normal)));
+    }
+    rebuild = true;
+  }
+  if (change.contains("color_by")) {
+    if (!change.contains("surface") || !change["surface"].is_number_integer())
+      throw InputError(where, "/surface", "expected the index of an iso-surface");
+    const long long index = change["surface"].get<long long>();
+    if (index < 0 || index >= (long long)m_surfaces.size())
+      throw InputError(where, "/surface", "no iso-surface " + std::to_string(index));
+    const Surface& s = m_surfaces[size_t(index)];
+    Json& iso = doc["volumes"][size_t(s.volume)]["isosurfaces"][size_t(s.index)];
+    if (!iso.contains("color_by")) throw InputError(where, "/color_by", "the surface is not coloured by data (its scene has no \"color_by\")");
+    const Json& c = change["color_by"];
+    if (!c.is_object()) throw InputError(where, "/color_by", "expected an object");
+    for (const auto& [key, value] : c.items()) {
+      if (key != "map" && key != "range") throw InputError(where, "/color_by/" + key, "unknown key (known: map, range)");
+      iso["color_by"][key] = value;  // the parser checks them below
+    }
+    rebuild = true;
   }
   if (change.contains("value") || change.contains("color")) {
     if (!change.contains("surface") || !change["surface"].is_number_integer())
@@ -287,8 +358,8 @@ void ViewSession::apply(const std::string& body) {
         iso["color"] = vec(rgb);
     }
     rebuild = true;
-  } else if (change.contains("surface")) {
-    throw InputError(where, "/surface", "a surface goes with a value or a color");
+  } else if (change.contains("surface") && !change.contains("color_by")) {
+    throw InputError(where, "/surface", "a surface goes with a value, a color or a color_by");
   }
   if (change.contains("integrator")) {
     const Json& name = change["integrator"];

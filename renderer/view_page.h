@@ -1,7 +1,9 @@
 #pragma once
 // The one page of `isotrace view` (renderer/view.cpp), compiled into the binary: nothing is
 // fetched from anywhere else. Controls: one range input (class "iso") and one colour input per
-// iso-surface, the integrator (#integrator), Save (#save); the image (#view) takes orbit
+// iso-surface (for one coloured by data: a map select, class "map", and its range, class "lo" and
+// "hi", instead of the colour), one range input (class "slice") per slice plane, the integrator
+// (#integrator), Save (#save); the image (#view) takes orbit
 // (drag), pan (shift-drag or right-drag) and zoom (wheel). Frames come as server-sent events.
 
 namespace iso {
@@ -31,6 +33,7 @@ inline constexpr const char* kViewPage = R"HTML(<!doctype html>
   <div><b>isotrace view</b> <span id="scene"></span></div>
   <label>integrator <select id="integrator"></select></label>
   <div id="surfaces"></div>
+  <div id="slices"></div>
   <div class="figures">spp <span id="spp">0</span> / <span id="target">0</span> ·
     <span id="mrays">0</span> Mrays/s · <span id="seconds">0</span> s</div>
   <div><button id="save">Save</button></div>
@@ -98,15 +101,56 @@ function showState(s) {
         value.textContent = Number(range.value).toPrecision(5);
         send("iso" + f.index, {surface: f.index, value: Number(range.value)});
       });
-      const colour = document.createElement("input");
-      colour.type = "color";
-      colour.className = "color";
-      colour.dataset.surface = f.index;
-      colour.addEventListener("input", () => send("color" + f.index, {surface: f.index, color: colour.value}));
-      div.append(label, range, colour);
+      if (f.color_by) {  // coloured by data: the map and its range
+        const map = document.createElement("select");
+        map.className = "map";
+        for (const name of s.maps) map.add(new Option(name, name));
+        const lo = document.createElement("input"), hi = document.createElement("input");
+        lo.type = hi.type = "number";
+        lo.className = "lo";
+        hi.className = "hi";
+        lo.style.width = hi.style.width = "7em";
+        const sendMap = () => send("colorby" + f.index, {surface: f.index,
+                                    color_by: {map: map.value, range: [Number(lo.value), Number(hi.value)]}});
+        for (const e of [map, lo, hi]) e.addEventListener("change", sendMap);
+        const note = document.createElement("div");
+        note.textContent = "coloured by " + f.color_by.field;
+        div.append(label, range, note, map, lo, hi);
+      } else {
+        const colour = document.createElement("input");
+        colour.type = "color";
+        colour.className = "color";
+        colour.dataset.surface = f.index;
+        colour.addEventListener("input", () => send("color" + f.index, {surface: f.index, color: colour.value}));
+        div.append(label, range, colour);
+      }
       box.append(div);
     }
   }
+  const slices = $("slices");
+  if (slices.children.length !== s.slices.length) {
+    slices.textContent = "";
+    for (const f of s.slices) {
+      const div = document.createElement("div");
+      div.className = "surface";
+      const label = document.createElement("label");
+      label.textContent = f.label;
+      const range = document.createElement("input");
+      range.type = "range";
+      range.className = "slice";
+      range.min = f.min;
+      range.max = f.max;
+      range.step = f.max > f.min ? (f.max - f.min) / 1000 : 1;
+      range.setAttribute("aria-label", "position of " + f.label);
+      range.addEventListener("input", () => send("slice" + f.index, {slice: f.index, position: Number(range.value)}));
+      div.append(label, range);
+      slices.append(div);
+    }
+  }
+  s.slices.forEach((f, i) => {
+    const range = slices.children[i].querySelector(".slice");
+    if (document.activeElement !== range) range.value = f.position;
+  });
   s.surfaces.forEach((f, i) => {
     const div = box.children[i];
     const range = div.querySelector(".iso");
@@ -114,7 +158,14 @@ function showState(s) {
       range.value = f.value;
       div.querySelector(".value").textContent = Number(f.value).toPrecision(5);
     }
-    div.querySelector(".color").value = f.color;
+    if (f.color_by) {
+      for (const [cls, v] of [["map", f.color_by.map], ["lo", f.color_by.range[0]], ["hi", f.color_by.range[1]]]) {
+        const e = div.querySelector("." + cls);
+        if (document.activeElement !== e) e.value = v;
+      }
+    } else {
+      div.querySelector(".color").value = f.color;
+    }
   });
   $("error").textContent = s.error || "";
 }

@@ -236,6 +236,12 @@ bool ColorMap::named(const std::string& name, ColorMap& map) {
   return false;
 }
 
+std::vector<std::string> ColorMap::names() {
+  std::vector<std::string> all;
+  for (const Named& m : kMaps) all.push_back(m.name);
+  return all;
+}
+
 const char* ColorMap::list() { return "viridis, magma, inferno, plasma, cividis, turbo, cool_warm, grey"; }
 
 ColorMap ColorMap::fromStops(std::vector<Stop> stops) {

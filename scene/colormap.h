@@ -18,6 +18,7 @@ class ColorMap {
   // A built-in map by name (false if there is none of that name).
   static bool named(const std::string& name, ColorMap& map);
   static const char* list();  // the built-in names, comma-separated
+  static std::vector<std::string> names();
   // A user's map: stops rising strictly from position 0 to 1 (the caller checks).
   static ColorMap fromStops(std::vector<Stop> stops);
 

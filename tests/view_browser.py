@@ -5,7 +5,8 @@ through python3-selenium (Debian's python, which has selenium).
 Checks: the page loads with no console errors; the image appears; moving an iso slider changes
 the surface and the image, which refines in steps (the page's log of the frames it received
 shows every pass of the new version, in order, up to the scene's spp); the integrator switch
-works; Save writes files that `isotrace render` turns into the same picture. Nothing waits for
+works; the surface's colour map and the slice's position change the server's scene; Save writes
+files that `isotrace render` turns into the same picture. Nothing waits for
 a time: every wait is for an event the page shows, with a generous limit as a safety net.
 Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
 """
@@ -27,7 +28,9 @@ SCENE = {
     "integrator": {"type": "direct", "spp": 64},
     "meshes": [{"shape": "quad", "transform": {"scale": 3}, "material": "floor"}],
     "volumes": [{"procedural": {"field": "sphere", "resolution": [32, 32, 32]}, "transform": {"translate": [0, 1, 0]},
-                 "isosurfaces": [{"value": 0.6, "inside": "below", "material": "ball"}]}],
+                 "isosurfaces": [{"value": 0.6, "inside": "below", "material": "ball",
+                                  "color_by": {"field": "gradient_magnitude", "map": "plasma", "range": [0, 2]}}],
+                 "slices": [{"axis": "x", "position": -0.8, "map": "viridis"}]}],
     "materials": {"floor": {"type": "diffuse", "color": 0.7}, "ball": {"type": "diffuse", "color": [0.8, 0.3, 0.2]}},
     "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}],
 }
@@ -113,6 +116,19 @@ def main():
         if driver.find_element(By.ID, "view").get_attribute("src") == after_slider:
             fail("the image did not change with the integrator")
 
+        # Colour by data: another map; a slice: another position.
+        Select(driver.find_element(By.CSS_SELECTOR, "select.map")).select_by_value("cividis")
+        wait.until(lambda d: d.execute_script(
+            "return fetch('/api/state').then(r => r.json()).then(s => s.surfaces[0].color_by.map)") == "cividis")
+        slices = driver.find_elements(By.CSS_SELECTOR, "input[type=range].slice")
+        if len(slices) != 1:
+            fail("expected one slice slider, found %d" % len(slices))
+        driver.execute_script(
+            "const r = arguments[0]; r.value = -0.5; r.dispatchEvent(new Event('input', {bubbles: true}));", slices[0])
+        wait.until(lambda d: abs(d.execute_script(
+            "return fetch('/api/state').then(r => r.json()).then(s => s.slices[0].position)") + 0.5) < 2e-3)
+        wait.until(lambda d: finished(server_state()["version"]))
+
         if screenshot:
             Select(driver.find_element(By.ID, "integrator")).select_by_value("direct")
             wait.until(lambda d: d.execute_script(
@@ -137,7 +153,7 @@ def main():
         errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
         if errors:
             fail("console errors: %s" % errors)
-        print("view_browser: ok (page, refinement to %d spp, slider, integrator, save)" % spp())
+        print("view_browser: ok (page, refinement to %d spp, slider, integrator, colour map, slice, save)" % spp())
     finally:
         if driver:
             driver.quit()

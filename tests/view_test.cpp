@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "renderer/view.h"
+#include "scene/colormap.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -119,6 +120,50 @@ TEST(View, StartsFromTheOverriddenScene) {
   EXPECT_EQ(s["integrator"], "normals");
 }
 
+// Colour by data and slices in the view: the state lists them; a change of map, range or slice
+// position reaches the scene (a new version, Save writes it); bad ones are 400 and change nothing.
+TEST(View, ColorByAndSlicesChangeLive) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"camera": {"position": [0, 0, 4]}, "film": {"width": 16, "height": 12},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [16, 16, 16]},
+                 "isosurfaces": [{"value": 0.7, "color_by": {"field": "gradient_magnitude", "map": "plasma", "range": [0, 2]}}],
+                 "slices": [{"axis": "z", "position": 0.2}, {"point": [0, 0, 0], "normal": [0, 3, 4]}]}]})");
+  Running view(dir + "/s.json", 16, 12);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json s = state(c);
+  ASSERT_EQ(s["surfaces"].size(), 1u);
+  EXPECT_EQ(s["surfaces"][0]["color_by"]["map"], "plasma");
+  EXPECT_EQ(s["surfaces"][0]["color_by"]["range"], Json::array({0, 2}));
+  EXPECT_EQ(s["maps"].size(), ColorMap::names().size());
+  ASSERT_EQ(s["slices"].size(), 2u);
+  EXPECT_DOUBLE_EQ(s["slices"][0]["position"].get<double>(), 0.2);
+  EXPECT_DOUBLE_EQ(s["slices"][0]["min"].get<double>(), -1);  // the procedural grid spans [-1, 1]
+  EXPECT_DOUBLE_EQ(s["slices"][0]["max"].get<double>(), 1);
+  EXPECT_NEAR(s["slices"][1]["max"].get<double>(), 1.4, 1e-12);  // (3 + 4) / 5 at the corner (1, 1, 1)
+  auto post = [&](const std::string& body) { return c.Post("/api/state", body, "application/json"); };
+  auto ok = post(R"({"surface": 0, "color_by": {"map": "cividis", "range": [0.5, 1.5]}})");
+  ASSERT_TRUE(ok);
+  ASSERT_EQ(ok->status, 200) << ok->body;
+  ok = post(R"({"slice": 1, "position": -0.5})");
+  ASSERT_TRUE(ok);
+  ASSERT_EQ(ok->status, 200) << ok->body;
+  const Json now = Json::parse(ok->body);
+  EXPECT_EQ(now["version"], s["version"].get<uint64_t>() + 2);
+  EXPECT_EQ(now["surfaces"][0]["color_by"]["map"], "cividis");
+  EXPECT_EQ(now["surfaces"][0]["color_by"]["range"], Json::array({0.5, 1.5}));
+  EXPECT_NEAR(now["slices"][1]["position"].get<double>(), -0.5, 1e-12);
+  for (const char* bad : {R"({"surface": 0, "color_by": {"map": "jet"}})", R"({"surface": 0, "color_by": {"range": [2, 1]}})",
+                          R"({"surface": 0, "color_by": {"field": "x"}})", R"({"slice": 2, "position": 0})",
+                          R"({"slice": 0, "position": 3})", R"({"slice": 0})", R"({"position": 0})"}) {
+    auto r = post(bad);
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << bad << ": " << r->body;
+  }
+  EXPECT_EQ(state(c)["version"], now["version"]) << "a refused change changes nothing";
+  const Json frame = frameOf(view.port, now["version"], 1);
+  EXPECT_FALSE(frame.is_null()) << "the changed scene renders";
+}
+
 TEST(View, BadRequestsAre400AndChangeNothing) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/s.json", test::mixedScene());
@@ -138,7 +183,7 @@ TEST(View, BadRequestsAre400AndChangeNothing) {
            {R"({"surface": 0, "value": 1e9})", "/value: iso value out of the volume's range"},
            {R"({"surface": 0, "value": "x"})", "/value: expected a number"},
            {R"({"surface": 0, "color": "red"})", "/color: expected a colour"},
-           {R"({"surface": 0})", "a surface goes with a value or a color"},
+           {R"({"surface": 0})", "a surface goes with a value, a color or a color_by"},
            {R"({"integrator": "fancy"})", "/integrator: expected one of"},
            {R"({"camera": {"position": [0, 1, 0], "look_at": [0, 1, 0]}})", "camera looks at its own position"},
            {R"({"camera": {"fov": 500}})", "/camera/fov"},
