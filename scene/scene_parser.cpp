@@ -386,6 +386,7 @@ Json parseJsonText(const std::string& text, const std::string& path) {
 // starts like JSON but is not (3O0, [1, 2) is refused rather than guessed at.
 Json overrideValue(const std::string& value, const std::string& flag) {
   if (value.empty()) throw InputError(flag, "", "no value after '=' (a string is written \"\" or as a bare word)");
+  checkJsonNesting(value, flag);  // as deep as a scene file may be, no deeper
   Json v = Json::parse(value, nullptr, false);
   if (!v.is_discarded()) return v;
   if (std::string("{[\"-0123456789").find(value[0]) != std::string::npos)

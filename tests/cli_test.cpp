@@ -165,6 +165,8 @@ TEST(Cli, SetAndIsoOverrideTheSceneFile) {
   expectBadInput(dir, path + " --iso 0=inf", "--iso 0=inf: 'inf' is not a finite number");
   expectBadInput(dir, path + " --iso x", "--iso x: expected SURFACE=VALUE");
   expectBadInput(dir, path + " --iso -1=0.5", "no iso-surface '-1'");
+  expectBadInput(dir, path + " --set /camera/fov=" + std::string(5000, '[') + std::string(5000, ']'),
+                 "JSON nested more than 128 levels deep");
 }
 
 // Colour by data: a plane iso-surface (z = 7 of a volume whose value is z) coloured by a second
