@@ -105,13 +105,17 @@ function showState(s) {
         const map = document.createElement("select");
         map.className = "map";
         for (const name of s.maps) map.add(new Option(name, name));
+        // A map of the scene's own stops ("custom") stays until a named map is chosen.
+        if (!s.maps.includes(f.color_by.map)) map.add(new Option(f.color_by.map, f.color_by.map));
         const lo = document.createElement("input"), hi = document.createElement("input");
         lo.type = hi.type = "number";
         lo.className = "lo";
         hi.className = "hi";
         lo.style.width = hi.style.width = "7em";
-        const sendMap = () => send("colorby" + f.index, {surface: f.index,
-                                    color_by: {map: map.value, range: [Number(lo.value), Number(hi.value)]}});
+        const sendMap = () => {
+          if (s.maps.includes(map.value))
+            send("colorby" + f.index, {surface: f.index, color_by: {map: map.value, range: [Number(lo.value), Number(hi.value)]}});
+        };
         for (const e of [map, lo, hi]) e.addEventListener("change", sendMap);
         const note = document.createElement("div");
         note.textContent = "coloured by " + f.color_by.field;
