@@ -205,11 +205,8 @@ ViewSession::ViewSession(const std::string& path, const ViewOptions& options) : 
                             double(info.bricks->minValue()), double(info.bricks->maxValue())});
     for (size_t k = 0; k < m_desc.volumes[v].slices.size(); ++k) {
       const SliceDesc& slice = m_desc.volumes[v].slices[k];
-      const Grid& grid = *info.grid;
-      const Vec3d extent = Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
       double lo = INFINITY, hi = -INFINITY;
-      for (int c = 0; c < 8; ++c) {
-        const Vec3d corner = info.transform.point(grid.origin() + Vec3d{c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0});
+      for (const Vec3d& corner : gridBoxCorners(info)) {
         lo = std::min(lo, dot(corner, slice.normal));
         hi = std::max(hi, dot(corner, slice.normal));
       }
@@ -314,14 +311,22 @@ void ViewSession::apply(const std::string& body) {
     }
     rebuild = true;
   }
-  if (change.contains("color_by")) {
+  // A change of an iso-surface (value, color, color_by) names it.
+  const bool ofSurface = change.contains("value") || change.contains("color") || change.contains("color_by");
+  if (change.contains("surface") && !ofSurface)
+    throw InputError(where, "/surface", "a surface goes with a value, a color or a color_by");
+  const Surface* surface = nullptr;
+  if (ofSurface) {
     if (!change.contains("surface") || !change["surface"].is_number_integer())
       throw InputError(where, "/surface", "expected the index of an iso-surface");
     const long long index = change["surface"].get<long long>();
     if (index < 0 || index >= (long long)m_surfaces.size())
-      throw InputError(where, "/surface", "no iso-surface " + std::to_string(index));
-    const Surface& s = m_surfaces[size_t(index)];
-    Json& iso = doc["volumes"][size_t(s.volume)]["isosurfaces"][size_t(s.index)];
+      throw InputError(where, "/surface", "no iso-surface " + std::to_string(index) + " (the scene has " +
+                                              std::to_string(m_surfaces.size()) + ")");
+    surface = &m_surfaces[size_t(index)];
+  }
+  if (change.contains("color_by")) {
+    Json& iso = doc["volumes"][size_t(surface->volume)]["isosurfaces"][size_t(surface->index)];
     if (!iso.contains("color_by")) throw InputError(where, "/color_by", "the surface is not coloured by data (its scene has no \"color_by\")");
     const Json& c = change["color_by"];
     if (!c.is_object()) throw InputError(where, "/color_by", "expected an object");
@@ -332,13 +337,7 @@ void ViewSession::apply(const std::string& body) {
     rebuild = true;
   }
   if (change.contains("value") || change.contains("color")) {
-    if (!change.contains("surface") || !change["surface"].is_number_integer())
-      throw InputError(where, "/surface", "expected the index of an iso-surface");
-    const long long index = change["surface"].get<long long>();
-    if (index < 0 || index >= (long long)m_surfaces.size())
-      throw InputError(where, "/surface", "no iso-surface " + std::to_string(index) + " (the scene has " +
-                                              std::to_string(m_surfaces.size()) + ")");
-    const Surface& s = m_surfaces[size_t(index)];
+    const Surface& s = *surface;
     Json& iso = doc["volumes"][size_t(s.volume)]["isosurfaces"][size_t(s.index)];
     if (change.contains("value")) {
       if (!change["value"].is_number()) throw InputError(where, "/value", "expected a number");
@@ -358,8 +357,6 @@ void ViewSession::apply(const std::string& body) {
         iso["color"] = vec(rgb);
     }
     rebuild = true;
-  } else if (change.contains("surface") && !change.contains("color_by")) {
-    throw InputError(where, "/surface", "a surface goes with a value, a color or a color_by");
   }
   if (change.contains("integrator")) {
     const Json& name = change["integrator"];

@@ -69,6 +69,18 @@ function flush(kind) {
     .finally(() => { busy.delete(kind); flush(kind); });
 }
 
+// A range input from min to max in `steps` steps.
+function slider(className, min, max, steps, label) {
+  const range = document.createElement("input");
+  range.type = "range";
+  range.className = className;
+  range.min = min;
+  range.max = max;
+  range.step = max > min ? (max - min) / steps : 1;
+  range.setAttribute("aria-label", label);
+  return range;
+}
+
 function showState(s) {
   state = s;
   $("scene").textContent = s.scene.split("/").pop();
@@ -89,14 +101,8 @@ function showState(s) {
       const value = document.createElement("span");
       value.className = "value";
       label.append(name, value);
-      const range = document.createElement("input");
-      range.type = "range";
-      range.className = "iso";
-      range.min = f.min;
-      range.max = f.max;
-      range.step = f.max > f.min ? (f.max - f.min) / 10000 : 1;
+      const range = slider("iso", f.min, f.max, 10000, "iso value of " + f.label);
       range.dataset.surface = f.index;
-      range.setAttribute("aria-label", "iso value of " + f.label);
       range.addEventListener("input", () => {
         value.textContent = Number(range.value).toPrecision(5);
         send("iso" + f.index, {surface: f.index, value: Number(range.value)});
@@ -139,13 +145,7 @@ function showState(s) {
       div.className = "surface";
       const label = document.createElement("label");
       label.textContent = f.label;
-      const range = document.createElement("input");
-      range.type = "range";
-      range.className = "slice";
-      range.min = f.min;
-      range.max = f.max;
-      range.step = f.max > f.min ? (f.max - f.min) / 1000 : 1;
-      range.setAttribute("aria-label", "position of " + f.label);
+      const range = slider("slice", f.min, f.max, 1000, "position of " + f.label);
       range.addEventListener("input", () => send("slice" + f.index, {slice: f.index, position: Number(range.value)}));
       div.append(label, range);
       slices.append(div);

@@ -25,6 +25,8 @@ class ColorMap {
   // The colour at x in [0, 1] (outside: the end colours; NaN: the first), in sRGB and linear.
   Vec3f srgb(float x) const;
   Vec3f linear(float x) const;
+  // The linear colour of `value` mapped over [lo, hi] (lo < hi).
+  Vec3f linear(double value, double lo, double hi) const { return linear(float((value - lo) / (hi - lo))); }
   const std::string& name() const { return m_name; }
   bool empty() const { return m_stops.empty(); }
 

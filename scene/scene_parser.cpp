@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <set>
+#include <tuple>
+#include <optional>
 #include <sstream>
 
 #include "scene/scene.h"
@@ -394,6 +396,13 @@ Json overrideValue(const std::string& value, const std::string& flag) {
   return Json(value);
 }
 
+// `text` as a whole number below 10^9 (digits only); false otherwise.
+bool wholeNumber(const std::string& text, size_t& n) {
+  if (text.empty() || text.size() >= 10 || text.find_first_not_of("0123456789") != std::string::npos) return false;
+  n = std::stoul(text);
+  return true;
+}
+
 // Sets `value` at `pointer` in `root`, step by step: an object takes any key (a missing one
 // becomes an empty object on the way, as a block the file left out: /integrator/type in a scene
 // without "integrator"; the parser then refuses keys it does not know), an array only an index it
@@ -416,27 +425,19 @@ void setAt(Json& root, const std::string& pointer, Json value, const std::string
     const bool last = i + 1 == tokens.size();
     const std::string here = where.empty() ? "the scene" : where.to_string();
     if (at->is_object()) {
-      if (last) {
-        (*at)[key] = std::move(value);
-        return;
-      }
-      if (!at->contains(key)) (*at)[key] = Json::object();
+      if (!last && !at->contains(key)) (*at)[key] = Json::object();
       at = &(*at)[key];
     } else if (at->is_array()) {
-      const bool digits = !key.empty() && key.size() < 10 && key.find_first_not_of("0123456789") == std::string::npos &&
-                          (key == "0" || key[0] != '0');
-      if (!digits || std::stoul(key) >= at->size())
+      size_t index = 0;
+      if (!wholeNumber(key, index) || (key[0] == '0' && key != "0") || index >= at->size())
         throw InputError(flag, "", here + " is an array of " + std::to_string(at->size()) + ": no entry '" + key + "'");
-      if (last) {
-        (*at)[std::stoul(key)] = std::move(value);
-        return;
-      }
-      at = &(*at)[std::stoul(key)];
+      at = &(*at)[index];
     } else {
       throw InputError(flag, "", here + " is a " + std::string(at->type_name()) + ": nothing goes under it");
     }
     where /= key;
   }
+  *at = std::move(value);
 }
 
 // The overrides applied to the scene's tree, each recorded in `applied` as POINTER=VALUE.
@@ -468,11 +469,11 @@ void applyOverrides(Json& root, const SceneOverrides& overrides, std::vector<std
           for (size_t k = 0; k < isos->size(); ++k)
             pointers.push_back("/volumes/" + std::to_string(v) + "/isosurfaces/" + std::to_string(k) + "/value");
       }
-    const bool digits = !index.empty() && index.size() < 10 && index.find_first_not_of("0123456789") == std::string::npos;
-    if (!digits || std::stoul(index) >= pointers.size())
+    size_t surface = 0;
+    if (!wholeNumber(index, surface) || surface >= pointers.size())
       throw InputError(flag, "", "no iso-surface '" + index + "' (the scene has " + std::to_string(pointers.size()) +
                                      ", numbered from 0 over all volumes)");
-    const std::string& pointer = pointers[std::stoul(index)];
+    const std::string& pointer = pointers[surface];
     setAt(root, pointer, Json(value), flag);
     applied.push_back(pointer + "=" + Json(value).dump());
   }
@@ -487,6 +488,27 @@ void applyOverrides(Json& root, const SceneOverrides& overrides, std::vector<std
   }
 }
 
+// A named colour map at `key` (default `fallback`), refused by name if unknown; `stops`: the
+// place also takes a list of stops (said in the message).
+ColorMap namedMap(ObjectReader& r, const std::string& key, const std::string& fallback, bool stops) {
+  const std::string name = r.string(key, fallback);
+  ColorMap map;
+  if (!ColorMap::named(name, map))
+    r.fail(r.at(key), "unknown colour map '" + name + "' (known: " + ColorMap::list() +
+                          (stops ? ", or a list of [value, [r, g, b]] stops)" : ")"));
+  return map;
+}
+
+// "range": [low, high] with low < high, if given.
+std::optional<std::pair<double, double>> valueRange(ObjectReader& r) {
+  const Json* range = r.get("range");
+  if (!range) return std::nullopt;
+  if (!range->is_array() || range->size() != 2) r.fail(r.at("range"), "expected [low, high]");
+  const double lo = r.toNumber((*range)[0], r.at("range") + "/0"), hi = r.toNumber((*range)[1], r.at("range") + "/1");
+  if (!(lo < hi)) r.fail(r.at("range"), "an empty range: low must be below high");
+  return std::make_pair(lo, hi);
+}
+
 // "color_by": {"field": NAME, "map": NAME or [[value, [r, g, b]], ...], "range": [lo, hi],
 // "nan_color": [r, g, b]}. The field's name is resolved once every volume is read.
 ColorByDesc parseColorBy(ObjectReader r) {
@@ -496,9 +518,7 @@ ColorByDesc parseColorBy(ObjectReader r) {
   if (c.fieldName.empty()) r.fail(r.at("field"), "empty field name");
   const Json* map = r.get("map");
   if (!map || map->is_string()) {
-    const std::string name = map ? map->get<std::string>() : "viridis";
-    if (!ColorMap::named(name, c.map))
-      r.fail(r.at("map"), "unknown colour map '" + name + "' (known: " + ColorMap::list() + ", or a list of [value, [r, g, b]] stops)");
+    c.map = namedMap(r, "map", "viridis", true);
   } else {
     // A user's map: stops [value, [r, g, b]] (field values rising, sRGB in [0, 1]); the first and
     // last values are the range.
@@ -531,11 +551,8 @@ ColorByDesc parseColorBy(ObjectReader r) {
   }
   if (map && map->is_array() && r.has("range"))
     r.fail(r.at("range"), "a map of stops takes its range from their values: give one or the other");
-  if (const Json* range = r.get("range")) {
-    if (!range->is_array() || range->size() != 2) r.fail(r.at("range"), "expected [low, high]");
-    c.lo = r.toNumber((*range)[0], r.at("range") + "/0");
-    c.hi = r.toNumber((*range)[1], r.at("range") + "/1");
-    if (!(c.lo < c.hi)) r.fail(r.at("range"), "an empty range: low must be below high");
+  if (const auto range = valueRange(r)) {
+    std::tie(c.lo, c.hi) = *range;
   } else if (!map || map->is_string()) {
     r.fail(r.at("range"), "required key is missing ([low, high] of the field's values, mapped onto the map)");
   }
@@ -571,14 +588,8 @@ SliceDesc parseSlice(ObjectReader r) {
     for (int a = 0; a < 3; ++a)
       if (!(std::fabs(s.point[a]) <= 1e30)) r.fail(r.at("point"), "the point is not finite");
   }
-  const std::string map = r.string("map", "grey");
-  if (!ColorMap::named(map, s.map)) r.fail(r.at("map"), "unknown colour map '" + map + "' (known: " + ColorMap::list() + ")");
-  if (const Json* range = r.get("range")) {
-    if (!range->is_array() || range->size() != 2) r.fail(r.at("range"), "expected [low, high]");
-    s.lo = r.toNumber((*range)[0], r.at("range") + "/0");
-    s.hi = r.toNumber((*range)[1], r.at("range") + "/1");
-    if (!(*s.lo < *s.hi)) r.fail(r.at("range"), "an empty range: low must be below high");
-  }
+  s.map = namedMap(r, "map", "grey", false);
+  if (const auto range = valueRange(r)) std::tie(s.lo, s.hi) = *range;
   s.emit = r.boolean("emit", false);
   r.finish();
   return s;

@@ -126,14 +126,6 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
     loadMeshes(scene);
     buildVolumes(scene, intersector, sameVolumes);
     buildSlices(scene);
-    // "color_by": the sampled volume's placement (it may come later in the list) and the NaN colour.
-    for (SurfaceInfo& s : m_surfaces) {
-      if (!s.colorBy) continue;
-      const VolumeInfo& field = m_volumes[size_t(s.colorBy->volume < 0 ? s.volume : s.colorBy->volume)];
-      s.colorWorldToObject = field.transform.inverse();
-      const Vec3d n = s.colorBy->nanColor;
-      s.nanColor = {srgbToLinear(float(n.x)), srgbToLinear(float(n.y)), srgbToLinear(float(n.z))};
-    }
     buildLights(scene);
     // The GGX albedo table (~8e7 instructions, built once per process on first use) is built
     // here rather than inside the first tile a thread renders, where it held the other threads
@@ -401,6 +393,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       VolumeFile file = loadVolume(desc);
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;
+      info.toObject = info.transform.inverse();
       info.format = file.format;
       info.notes = std::move(file.notes);
     }
@@ -427,6 +420,10 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       s.solidAbove = isoDesc.solidAbove;
       s.smoothNormals = isoDesc.smoothNormals;
       s.colorBy = isoDesc.colorBy;
+      if (s.colorBy) {
+        const Vec3d n = s.colorBy->nanColor;
+        s.nanColor = {srgbToLinear(float(n.x)), srgbToLinear(float(n.y)), srgbToLinear(float(n.z))};
+      }
       if (!isoDesc.material.empty()) {
         s.material = materialFor(scene, isoDesc.material);
       } else if (isoDesc.color) {
@@ -446,7 +443,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
                       lo, hi);
         m_warnings.push_back(scene.path + ": " + desc.where + "/isosurfaces/" + std::to_string(k) + ": " + line);
       }
-      if (instanced) s.surface->setWorldToObject(vol.transform.inverse());
+      if (instanced) s.surface->setWorldToObject(vol.toObject);
       // A surface with no active brick holds no primitive: nothing for Embree to build.
       if (!s.surface->activeBricks().empty()) {
         GeometryRecord rec;
@@ -929,15 +926,9 @@ void World::buildSlices(const SceneDesc& scene) {
   for (size_t v = 0; v < scene.volumes.size(); ++v)
     for (const SliceDesc& desc : scene.volumes[v].slices) {
       const VolumeInfo& vol = m_volumes[v];
-      const Grid& grid = *vol.grid;
-      const Vec3d extent = Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
-      Vec3d corner[8];
+      const std::array<Vec3d, 8> corner = gridBoxCorners(vol);
       double d[8];
-      for (int c = 0; c < 8; ++c) {
-        const Vec3d object = grid.origin() + Vec3d{c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0};
-        corner[c] = vol.transform.point(object);
-        d[c] = dot(corner[c] - desc.point, desc.normal);
-      }
+      for (int c = 0; c < 8; ++c) d[c] = dot(corner[c] - desc.point, desc.normal);
       std::vector<Vec3d> points;
       for (int c = 0; c < 8; ++c)
         if (d[c] == 0) points.push_back(corner[c]);
@@ -968,7 +959,6 @@ void World::buildSlices(const SceneDesc& scene) {
       info.hi = desc.hi ? *desc.hi : double(vol.bricks->maxValue());
       if (!(info.hi > info.lo)) info.hi = info.lo + 1;  // a constant volume: one colour
       info.emit = desc.emit;
-      info.worldToObject = vol.transform.inverse();
       info.triangles = mesh->triangleCount();
       Material m;
       m.name = desc.where;
@@ -986,51 +976,59 @@ void World::buildSlices(const SceneDesc& scene) {
     }
 }
 
-double World::sampleVolume(int volume, const Transform& worldToObject, const Vec3d& world, bool clamp) const {
+std::array<Vec3d, 8> gridBoxCorners(const VolumeInfo& volume) {
+  const Grid& grid = *volume.grid;
+  const Vec3d extent = Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
+  std::array<Vec3d, 8> corners;
+  for (int c = 0; c < 8; ++c)
+    corners[size_t(c)] =
+        volume.transform.point(grid.origin() + Vec3d{c & 1 ? extent.x : 0, c & 2 ? extent.y : 0, c & 4 ? extent.z : 0});
+  return corners;
+}
+
+bool World::gridCoordinates(int volume, const Vec3d& world, Vec3d& g) const {
   const VolumeInfo& vol = m_volumes[size_t(volume)];
   const Grid& grid = *vol.grid;
-  const Vec3d object = vol.transform.isIdentity() ? world : worldToObject.point(world);
-  const Vec3d g = (object - grid.origin()) / grid.spacing();
+  g = ((vol.transform.isIdentity() ? world : vol.toObject.point(world)) - grid.origin()) / grid.spacing();
   const Vec3d hi = Vec3d(grid.dims() - Vec3i{1, 1, 1});
-  // Outside the grid (beyond rounding of the point): no value (Grid::interpolate clamps).
   const double slack = 1e-9 * (std::max({std::fabs(g.x), std::fabs(g.y), std::fabs(g.z)}) + 1);
-  if (!clamp)
-    for (int a = 0; a < 3; ++a)
-      if (!(g[a] >= -slack && g[a] <= hi[a] + slack)) return NAN;
-  return grid.interpolate(g);
+  for (int a = 0; a < 3; ++a)
+    if (!(g[a] >= -slack && g[a] <= hi[a] + slack)) return false;
+  return true;
 }
 
 double World::colorValue(const SurfaceInfo& s, const Vec3d& world) const {
   const ColorByDesc& c = *s.colorBy;
-  if (c.volume >= 0) return sampleVolume(c.volume, s.colorWorldToObject, world, false);
-  const VolumeInfo& vol = m_volumes[size_t(s.volume)];
-  const Grid& grid = *vol.grid;
-  const Vec3d object = vol.transform.isIdentity() ? world : s.colorWorldToObject.point(world);
-  const Vec3d g = (object - grid.origin()) / grid.spacing();
-  if (!std::isfinite(sampleVolume(s.volume, s.colorWorldToObject, world, false))) return NAN;
+  const int volume = c.volume >= 0 ? c.volume : s.volume;
+  Vec3d g;
+  if (!gridCoordinates(volume, world, g)) return NAN;
+  const VolumeInfo& vol = m_volumes[size_t(volume)];
+  if (c.volume >= 0) return vol.grid->interpolate(g);
   // The gradient's magnitude in world units: per grid step to per object unit, then the
   // inverse transpose of the volume's placement.
-  const Vec3d d = grid.smoothGradient(g) / grid.spacing();
+  const Vec3d d = vol.grid->smoothGradient(g) / vol.grid->spacing();
   if (vol.transform.isIdentity()) return length(d);
-  const Transform& inv = s.colorWorldToObject;
+  const Transform& inv = vol.toObject;
   Vec3d worldGradient;
   for (int i = 0; i < 3; ++i) worldGradient[i] = inv.m[0][i] * d.x + inv.m[1][i] * d.y + inv.m[2][i] * d.z;
   return length(worldGradient);
 }
 
+Vec3f World::sliceColor(const Hit& hit) const {
+  const SliceInfo& s = m_slices[size_t(hit.slice)];
+  Vec3d g;
+  gridCoordinates(s.volume, hit.position64, g);  // on the slice's polygon: inside (the value clamps)
+  return s.map.linear(m_volumes[size_t(s.volume)].grid->interpolate(g), s.lo, s.hi);
+}
+
 Vec3f World::albedo(const Hit& hit) const {
-  if (hit.slice >= 0) {  // a slice: its map of the volume's value, or black if it only emits
-    const SliceInfo& s = m_slices[size_t(hit.slice)];
-    if (s.emit) return {0, 0, 0};
-    return s.map.linear(float((sampleVolume(s.volume, s.worldToObject, hit.position64, true) - s.lo) / (s.hi - s.lo)));
-  }
+  if (hit.slice >= 0)  // a slice: its map of the volume's value, or black if it only emits
+    return m_slices[size_t(hit.slice)].emit ? Vec3f{0, 0, 0} : sliceColor(hit);
   if (hit.surface >= 0) {
     const SurfaceInfo& s = m_surfaces[size_t(hit.surface)];
     if (s.colorBy) {
       const double v = colorValue(s, hit.position64);
-      if (!std::isfinite(v)) return s.nanColor;
-      const ColorByDesc& c = *s.colorBy;
-      return c.map.linear(float((v - c.lo) / (c.hi - c.lo)));
+      return std::isfinite(v) ? s.colorBy->map.linear(v, s.colorBy->lo, s.colorBy->hi) : s.nanColor;
     }
   }
   const Material& m = m_materials[hit.material];
@@ -1065,10 +1063,7 @@ Bsdf World::bsdf(const Hit& hit) const {
 Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
   const Material& m = m_materials[hit.material];
   if (!m.emits()) return {0, 0, 0};
-  if (hit.slice >= 0) {  // an unlit slice shows its map on both sides
-    const SliceInfo& s = m_slices[size_t(hit.slice)];
-    return s.map.linear(float((sampleVolume(s.volume, s.worldToObject, hit.position64, true) - s.lo) / (s.hi - s.lo)));
-  }
+  if (hit.slice >= 0) return sliceColor(hit);  // an unlit slice shows its map on both sides
   if (hit.surface < 0 && hit.light >= 0) return m_lights[hit.light].emitted(hit.triangle, hit.b1, hit.b2, wo);
   // Emissive iso-surfaces: front side is out of the solid.
   if (!m.twoSided && dot(wo, hit.normal) <= 0) return {0, 0, 0};

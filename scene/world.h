@@ -5,6 +5,7 @@
 // Embree instances. Only what the scene uses is loaded or built.
 #include <embree3/rtcore.h>
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -52,8 +53,7 @@ struct SurfaceInfo {
   std::unique_ptr<IsoSurface> surface;
   // "color_by": the base colour from a colour map of a field at the hit (World::albedo).
   std::optional<ColorByDesc> colorBy;
-  Transform colorWorldToObject;  // of the volume sampled (its grid's object space)
-  Vec3f nanColor;                // colorBy->nanColor in linear light
+  Vec3f nanColor;  // colorBy->nanColor in linear light
 };
 
 // A slice plane of a volume as built: its polygon inside the grid is a mesh in the scene.
@@ -62,7 +62,6 @@ struct SliceInfo {
   ColorMap map;
   double lo = 0, hi = 1;
   bool emit = false;
-  Transform worldToObject;  // of the volume
   size_t triangles = 0;
 };
 
@@ -71,6 +70,7 @@ struct VolumeInfo {
   std::shared_ptr<const Grid> grid;  // shared with a World built from it (sameVolumes)
   std::shared_ptr<const BrickGrid> bricks;
   Transform transform;             // grid space -> world: the file's affine, then the scene's
+  Transform toObject;              // its inverse: world -> the grid's object space
   std::string format;              // the file's format ("procedural" for a built-in field)
   std::vector<std::string> notes;  // what the file said about itself (VolumeFile::notes)
 };
@@ -85,6 +85,10 @@ struct MeshInfo {
   size_t cameras = 0, lights = 0, materials = 0, textures = 0, images = 0;
   Vec3d lower{1e300, 1e300, 1e300}, upper{-1e300, -1e300, -1e300};  // world-space bounds
 };
+
+// The 8 corners of a volume's grid box in world space (corner c: bit 0 x, bit 1 y, bit 2 z at
+// the grid's far side).
+std::array<Vec3d, 8> gridBoxCorners(const VolumeInfo& volume);
 
 class World {
  public:
@@ -168,8 +172,11 @@ class World {
   void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes);
   void buildSlices(const SceneDesc& scene);
   RTCGeometry triangleGeometry(const TriangleMesh& mesh) const;  // Embree triangles of `mesh`
-  // The value of volume `volume` at a world point (NaN outside its grid unless `clamp`).
-  double sampleVolume(int volume, const Transform& worldToObject, const Vec3d& world, bool clamp) const;
+  // A world point in volume `volume`'s grid coordinates; false if it lies outside the grid
+  // (beyond rounding of the point).
+  bool gridCoordinates(int volume, const Vec3d& world, Vec3d& g) const;
+  // A slice's map of its volume's value at a slice hit.
+  Vec3f sliceColor(const Hit& hit) const;
   void buildLights(const SceneDesc& scene);
   void addIsoSurfaceLight(int surface);
   int materialFor(const SceneDesc& scene, const std::string& name);

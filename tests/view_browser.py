@@ -79,6 +79,10 @@ def main():
         def server_state():
             return driver.execute_script("return fetch('/api/state').then(r => r.json());")
 
+        def state_at(path):
+            """A field of the server's state: a path such as 'surfaces[0].value'."""
+            return driver.execute_script("return fetch('/api/state').then(r => r.json()).then(s => s.%s)" % path)
+
         def finished(version):
             """True once the page has the last frame (the scene's spp) of `version`."""
             return any(s >= 64 and not p for s, p in frames_of(version))
@@ -95,8 +99,7 @@ def main():
         driver.execute_script(
             "const r = arguments[0]; r.value = 0.35; r.dispatchEvent(new Event('input', {bubbles: true}));", sliders[0])
         # (the slider snaps to its steps: 0.35 to within one)
-        wait.until(lambda d: abs(d.execute_script(
-            "return fetch('/api/state').then(r => r.json()).then(s => s.surfaces[0].value)") - 0.35) < 1e-3)
+        wait.until(lambda d: abs(state_at('surfaces[0].value') - 0.35) < 1e-3)
         slid = server_state()["version"]
         wait.until(lambda d: finished(slid))
         if d_log()[-1]["version"] != slid:
@@ -110,29 +113,25 @@ def main():
 
         # The integrator switch.
         Select(driver.find_element(By.ID, "integrator")).select_by_value("normals")
-        wait.until(lambda d: d.execute_script(
-            "return fetch('/api/state').then(r => r.json()).then(s => s.integrator)") == "normals")
+        wait.until(lambda d: state_at('integrator') == "normals")
         wait.until(lambda d: finished(server_state()["version"]))
         if driver.find_element(By.ID, "view").get_attribute("src") == after_slider:
             fail("the image did not change with the integrator")
 
         # Colour by data: another map; a slice: another position.
         Select(driver.find_element(By.CSS_SELECTOR, "select.map")).select_by_value("cividis")
-        wait.until(lambda d: d.execute_script(
-            "return fetch('/api/state').then(r => r.json()).then(s => s.surfaces[0].color_by.map)") == "cividis")
+        wait.until(lambda d: state_at('surfaces[0].color_by.map') == "cividis")
         slices = driver.find_elements(By.CSS_SELECTOR, "input[type=range].slice")
         if len(slices) != 1:
             fail("expected one slice slider, found %d" % len(slices))
         driver.execute_script(
             "const r = arguments[0]; r.value = -0.5; r.dispatchEvent(new Event('input', {bubbles: true}));", slices[0])
-        wait.until(lambda d: abs(d.execute_script(
-            "return fetch('/api/state').then(r => r.json()).then(s => s.slices[0].position)") + 0.5) < 2e-3)
+        wait.until(lambda d: abs(state_at('slices[0].position') + 0.5) < 2e-3)
         wait.until(lambda d: finished(server_state()["version"]))
 
         if screenshot:
             Select(driver.find_element(By.ID, "integrator")).select_by_value("direct")
-            wait.until(lambda d: d.execute_script(
-                "return fetch('/api/state').then(r => r.json()).then(s => s.integrator)") == "direct")
+            wait.until(lambda d: state_at('integrator') == "direct")
             wait.until(lambda d: finished(server_state()["version"]))
             driver.save_screenshot(screenshot)
 

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <type_traits>
 
 namespace iso {
@@ -132,8 +133,8 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       CellHit<Real> cellHit;
       if constexpr (std::is_same_v<Real, float>) {
-        GridRayCache local;
-        GridRayCache& c = cache ? *cache : local;
+        std::optional<GridRayCache> local;  // made only for a query without a cache of its own
+        GridRayCache& c = cache ? *cache : local.emplace();
         floatQueryRay(org, dir, tnear, tfar, start, c);
         if (!traverseCells<AnyHit>(cells, float(m_iso), c.ray, lo, hi, float(tnear), float(tfar), solver, cellHit,
                                    stats, start, &c.exact, float(tstop)))

@@ -198,24 +198,18 @@ inline decltype(auto) withCellAccess(const Grid& grid, const CellClasses* classe
 }
 
 // Where a segment's cubic ends exactly at zero (s = 1), the side it comes from: the sign of
-// the first non-zero of -df, d2f, -d3f at s = 1; `flat` if the cubic is constant.
+// the first non-zero of -df, d2f, -d3f at s = 1; `flat` if the cubic is constant there. The
+// cell's corner values `g` bound the field: a side they rule out (no corner above the iso value,
+// yet "from inside"; none below, yet "from outside") is rounding noise in the coefficients, and
+// counts as flat. Without that, two walks could decide the class at the same exact zero
+// differently: one stepping over the cell on its corners alone, the next brick re-deriving it
+// from a noise-level cubic (a root counted twice at 1e7 rays on hydrogen at iso 20,
+// tests/data/exactness/real_hydrogen_20.failures.txt).
 template <typename Real>
-inline Real approachSide(const Cubic<Real>& c, Real flat) {
+inline Real approachSide(const Cubic<Real>& c, const Real g[8], Real flat) {
   const Real d1 = c.c[1] + Real(2) * c.c[2] + Real(3) * c.c[3];
   const Real d2 = Real(2) * c.c[2] + Real(6) * c.c[3];
-  return d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : flat;
-}
-
-// approachSide for a segment of a cell whose corner values `g` bound the field: where rounding in
-// the cubic's coefficients points to a side the corners rule out (no corner above the iso value,
-// yet an approach "from inside"; or none below, yet "from outside"), the field is flat there
-// within rounding, and the class stands (`flat`). Without this, two walks could decide the class
-// at the same exact zero differently: one stepping over the cell on its corners alone, the
-// next brick's re-deriving it from a noise-level cubic (a root counted twice at 1e7 rays on
-// hydrogen at iso 20, tests/data/exactness/real_hydrogen_20.failures.txt).
-template <typename Real>
-inline Real boundedApproachSide(const Cubic<Real>& c, const Real g[8], Real flat) {
-  const Real side = approachSide(c, flat);
+  const Real side = d1 != Real(0) ? -d1 : d2 != Real(0) ? d2 : c.c[3] != Real(0) ? -c.c[3] : flat;
   bool above = false, below = false;
   for (int i = 0; i < 8; ++i) {
     above = above || g[i] > Real(0);
@@ -243,7 +237,7 @@ Real classBehindEntry(const Cells& cells, Real iso, const GridRay<Real>& ray, Ve
   behind.b[entryAxis] = Real(1) - entry[entryAxis];
   behind.a = behind.b - ray.dir;
   const Real tiny = std::numeric_limits<Real>::denorm_min();
-  return boundedApproachSide(cellCubic(behind), behind.g, carried) > Real(0) ? tiny : -tiny;
+  return approachSide(cellCubic(behind), behind.g, carried) > Real(0) ? tiny : -tiny;
 }
 
 // The class (+1 inside, -1 outside, 0 exactly on the surface) of the field of `cell` in double,
@@ -431,7 +425,7 @@ class CellWalk {
         if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? kTiny : -kTiny;
       }
     }
-    if (seg.f1 == Real(0)) seg.f1 = boundedApproachSide(cellCubic(seg), seg.g, seg.f0) > Real(0) ? kTiny : -kTiny;
+    if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.g, seg.f0) > Real(0) ? kTiny : -kTiny;
     m_carried = seg.f1 > Real(0) ? kTiny : -kTiny;
     return Visit::Solve;
   }
