@@ -55,7 +55,9 @@ class SurfaceChecker {
  public:
   SurfaceChecker(const World& world, const Transform& toWorld, double iso, RayFlow flow)
       : m_world(world), m_flow(flow), m_grid(*world.volumes()[0].grid), m_toWorld(toWorld), m_iso(iso),
-        m_reference(m_grid, *world.volumes()[0].bricks, iso, IntersectorSpec{IntersectorKind::Reference, 8}) {
+        m_clip(world.surfaces()[0].surface->clip()), m_solidAbove(world.surfaces()[0].surface->solidAbove()),
+        m_reference(m_grid, *world.volumes()[0].bricks, iso, IntersectorSpec{IntersectorKind::Reference, 8}, m_clip,
+                    m_solidAbove) {
     // World -> grid coordinates: the inverse placement, then origin and spacing.
     m_toGrid = toWorld.inverse();
     const Vec3i d = m_grid.dims();
@@ -71,10 +73,16 @@ class SurfaceChecker {
   // within 1e-12 of the iso value, exactly on it with integer data) has none. The walk gives an
   // exact zero the class the ray approaches it from (CellWalk), the field alone says outside:
   // a test ending there compares only what does not depend on that convention.
+  // A clipped surface's class outside the clip region is the one outside its solid; a point on
+  // a clip plane (within 1e-12 of the grid's extent) has none either.
   bool classAt(const Vec3d& grid, bool& defined) const {
     const double v = m_grid.interpolate(grid);
     defined = std::fabs(v - m_iso) > 1e-12 * (std::fabs(m_iso) + std::fabs(v));
-    return v > m_iso;
+    if (m_clip.empty()) return v > m_iso;
+    const Vec3d object = grid * m_grid.spacing() + m_grid.origin();
+    const double extent = length(m_hi * m_grid.spacing()) + length(m_grid.origin());
+    if (!(m_clip.planeDistance(object) > 1e-12 * extent)) defined = false;
+    return m_clip.keeps(object) ? v > m_iso : !m_solidAbove;
   }
 
   // Crossings of the line o + t d, t in [t0, t1] (world space), by the reference intersector
@@ -304,6 +312,8 @@ class SurfaceChecker {
   const Grid& m_grid;
   Transform m_toWorld, m_toGrid;
   double m_iso;
+  ClipRegion m_clip;  // the surface's, in its object space
+  bool m_solidAbove;
   IsoSurface m_reference;
   Vec3d m_hi;
 };
@@ -320,6 +330,10 @@ struct AloneSurface {
     alone.path = scene.path;
     desc = scene.volumes[v];
     desc.transform = Transform::translate(offset) * desc.transform;
+    // The clip regions (the scene's and the volume's, in world space) move with the volume.
+    ClipRegion clip = scene.clip;
+    clip.add(desc.clip);
+    desc.clip = clip.transformed(Transform::translate(offset));
     desc.isosurfaces = {scene.volumes[v].isosurfaces[k]};
     desc.isosurfaces[0].material.clear();
     alone.volumes.push_back(desc);

@@ -9,6 +9,7 @@
 
 #include "scene/colormap.h"
 
+#include "volume/clip.h"
 #include "volume/transform.h"
 
 #include "volume/intersectors.h"
@@ -72,6 +73,7 @@ struct IsoSurfaceDesc {
   bool solidAbove = true;      // the solid (e.g. glass) is where value > iso
   bool smoothNormals = true;   // shading normals from Grid::smoothGradient; false: the cell's own
   std::optional<ColorByDesc> colorBy;
+  std::optional<ColorByDesc> capColorBy;  // "cap_color_by": of the caps clip planes cut (default: colorBy)
 };
 
 enum class MeshShape { None, Sphere, Quad };
@@ -118,6 +120,7 @@ struct VolumeDesc {
   std::string name;     // "name": how "color_by" refers to it (empty: none)
   std::vector<IsoSurfaceDesc> isosurfaces;  // none: a data field that colours others, not drawn
   std::vector<SliceDesc> slices;
+  ClipRegion clip;  // "clip" (world space): its iso-surfaces are cut open and capped
 };
 
 struct RenderSettings {
@@ -147,6 +150,7 @@ struct SceneDesc {
   std::vector<VolumeDesc> volumes;
   std::map<std::string, MaterialDesc> materials;
   std::vector<LightDesc> lights;
+  ClipRegion clip;  // the scene's "clip" (world space): every volume, and meshes that do not emit
   // The command line's changes to the file (SceneOverrides), as applied: "POINTER=VALUE", the
   // value as compact JSON, in the order given (--iso first). Images record them.
   std::vector<std::string> overrides;

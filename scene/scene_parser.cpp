@@ -561,6 +561,51 @@ ColorByDesc parseColorBy(ObjectReader r) {
   return c;
 }
 
+// "point" and "normal" of a plane (a slice, a clip plane): finite, the normal not zero (unit).
+std::pair<Vec3d, Vec3d> readPlane(ObjectReader& r) {
+  if (!r.has("point")) r.fail(r.at("point"), "required key is missing");
+  if (!r.has("normal")) r.fail(r.at("normal"), "required key is missing");
+  const Vec3d point = *r.vec3("point");
+  const Vec3d normal = *r.vec3("normal");
+  const double len = length(normal);
+  if (!(len > 1e-30) || !std::isfinite(len)) r.fail(r.at("normal"), "the normal has zero length");
+  for (int a = 0; a < 3; ++a)
+    if (!(std::fabs(point[a]) <= 1e30)) r.fail(r.at("point"), "the point is not finite");
+  return {point, normal / len};
+}
+
+// "clip": a list of at most 64 entries, each {"plane": {"point": [...], "normal": [...]}} (keeps
+// the side the normal points away from) or {"box": {"min": [...], "max": [...]}} (keeps the
+// inside); the region kept is what every entry keeps.
+ClipRegion parseClip(const Json& j, const std::string& where, const std::string& file) {
+  if (!j.is_array() || j.size() > 64) throw InputError(file, where, "expected an array of at most 64 planes and boxes");
+  ClipRegion clip;
+  for (size_t i = 0; i < j.size(); ++i) {
+    ObjectReader entry(j[i], where + "/" + std::to_string(i), file, {"plane", "box"});
+    if (entry.has("plane") == entry.has("box"))
+      entry.fail(entry.path(), "a clip entry is either {\"plane\": {\"point\", \"normal\"}} or {\"box\": {\"min\", \"max\"}}");
+    if (const Json* plane = entry.get("plane")) {
+      ObjectReader r(*plane, entry.at("plane"), file, {"point", "normal"});
+      const auto [point, normal] = readPlane(r);
+      r.finish();
+      clip.addPlane(point, normal);
+    } else {
+      ObjectReader r(*entry.get("box"), entry.at("box"), file, {"min", "max"});
+      for (const char* key : {"min", "max"})
+        if (!r.has(key)) r.fail(r.at(key), "required key is missing");
+      const Vec3d lo = *r.vec3("min"), hi = *r.vec3("max");
+      for (int a = 0; a < 3; ++a) {
+        if (!(std::fabs(lo[a]) <= 1e30 && std::fabs(hi[a]) <= 1e30)) r.fail(r.path(), "a corner is not finite");
+        if (!(lo[a] < hi[a])) r.fail(r.at("max"), std::string("max is not above min on ") + "xyz"[a]);
+      }
+      r.finish();
+      clip.addBox(lo, hi);
+    }
+    entry.finish();
+  }
+  return clip;
+}
+
 // "slices[k]": {"axis": "x"|"y"|"z", "position": p} or {"point": [...], "normal": [...]} (world
 // space), "map" (default grey), "range" (default: the volume's values), "emit" (false).
 SliceDesc parseSlice(ObjectReader r) {
@@ -578,15 +623,7 @@ SliceDesc parseSlice(ObjectReader r) {
     s.point = {0, 0, 0};
     s.point[a] = r.number("position", 0, -1e30, 1e30);
   } else {
-    if (!r.has("point")) r.fail(r.at("point"), "required key is missing");
-    if (!r.has("normal")) r.fail(r.at("normal"), "required key is missing");
-    s.point = *r.vec3("point");
-    s.normal = *r.vec3("normal");
-    const double len = length(s.normal);
-    if (!(len > 1e-30) || !std::isfinite(len)) r.fail(r.at("normal"), "the normal has zero length");
-    s.normal = s.normal / len;
-    for (int a = 0; a < 3; ++a)
-      if (!(std::fabs(s.point[a]) <= 1e30)) r.fail(r.at("point"), "the point is not finite");
+    std::tie(s.point, s.normal) = readPlane(r);
   }
   s.map = namedMap(r, "map", "grey", false);
   if (const auto range = valueRange(r)) std::tie(s.lo, s.hi) = *range;
@@ -600,7 +637,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
   SceneDesc scene;
   scene.path = path;
   ObjectReader r(root, "", path,
-                 {"camera", "film", "integrator", "intersector", "meshes", "volumes", "materials", "lights"});
+                 {"camera", "film", "integrator", "intersector", "meshes", "volumes", "materials", "lights", "clip"});
   if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path, {"position", "look_at", "up", "fov", "gltf_camera"}), scene.camera);
   else scene.camera.frameScene = true;
   if (const Json* j = r.get("film")) {
@@ -677,7 +714,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
                       {"file", "procedural", "dims", "type", "endian", "series", "grid", "origin", "spacing", "transform",
-                       "name", "isosurfaces", "slices"});
+                       "name", "isosurfaces", "slices", "clip"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
@@ -752,7 +789,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
       if (!isos.is_array()) vr.fail(vr.at("isosurfaces"), std::string("expected an array of iso-surfaces, found ") + typeName(isos));
       for (size_t k = 0; k < isos.size(); ++k) {
         ObjectReader ir(isos[k], vr.at("isosurfaces") + "/" + std::to_string(k), path,
-                        {"value", "color", "material", "inside", "normals", "color_by"});
+                        {"value", "color", "material", "inside", "normals", "color_by", "cap_color_by"});
         IsoSurfaceDesc iso;
         iso.value = ir.toNumber(ir.require("value"), ir.at("value"));
         iso.color = ir.rgb("color", 0, 1);
@@ -761,6 +798,8 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
         iso.smoothNormals = ir.choice("normals", "smooth", {"smooth", "cell"}) == "smooth";
         if (const Json* c = ir.get("color_by")) iso.colorBy = parseColorBy(ObjectReader(*c, ir.at("color_by"), path,
                                                                                         {"field", "map", "range", "nan_color"}));
+        if (const Json* c = ir.get("cap_color_by"))
+          iso.capColorBy = parseColorBy(ObjectReader(*c, ir.at("cap_color_by"), path, {"field", "map", "range", "nan_color"}));
         ir.finish();
         v.isosurfaces.push_back(iso);
       }
@@ -770,10 +809,12 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
           v.slices.push_back(parseSlice(ObjectReader((*slices)[k], vr.at("slices") + "/" + std::to_string(k), path,
                                                      {"axis", "position", "point", "normal", "map", "range", "emit"})));
       }
+      if (const Json* c = vr.get("clip")) v.clip = parseClip(*c, vr.at("clip"), path);
       vr.finish();
       scene.volumes.push_back(std::move(v));
     }
   }
+  if (const Json* c = r.get("clip")) scene.clip = parseClip(*c, "/clip", path);
   r.finish();
   auto checkMaterial = [&](const std::string& name, const std::string& where) {
     if (!name.empty() && !scene.materials.count(name))
@@ -784,19 +825,20 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
     for (const IsoSurfaceDesc& iso : v.isosurfaces) checkMaterial(iso.material, iso.materialWhere);
   // "color_by" fields name volumes anywhere in the list.
   for (VolumeDesc& v : scene.volumes)
-    for (size_t k = 0; k < v.isosurfaces.size(); ++k) {
-      std::optional<ColorByDesc>& c = v.isosurfaces[k].colorBy;
-      if (!c || c->fieldName == "gradient_magnitude") continue;
-      std::string names;
-      for (size_t i = 0; i < scene.volumes.size(); ++i) {
-        if (scene.volumes[i].name == c->fieldName) c->volume = int(i);
-        if (!scene.volumes[i].name.empty()) names += (names.empty() ? "" : ", ") + scene.volumes[i].name;
+    for (size_t k = 0; k < v.isosurfaces.size(); ++k)
+      for (const char* key : {"color_by", "cap_color_by"}) {
+        std::optional<ColorByDesc>& c = std::string(key) == "color_by" ? v.isosurfaces[k].colorBy : v.isosurfaces[k].capColorBy;
+        if (!c || c->fieldName == "gradient_magnitude") continue;
+        std::string names;
+        for (size_t i = 0; i < scene.volumes.size(); ++i) {
+          if (scene.volumes[i].name == c->fieldName) c->volume = int(i);
+          if (!scene.volumes[i].name.empty()) names += (names.empty() ? "" : ", ") + scene.volumes[i].name;
+        }
+        if (c->volume < 0)
+          throw InputError(path, v.where + "/isosurfaces/" + std::to_string(k) + "/" + key + "/field",
+                           "no volume is named '" + c->fieldName + "' (named: " + (names.empty() ? "none" : names) +
+                               "; or \"gradient_magnitude\")");
       }
-      if (c->volume < 0)
-        throw InputError(path, v.where + "/isosurfaces/" + std::to_string(k) + "/color_by/field",
-                         "no volume is named '" + c->fieldName + "' (named: " + (names.empty() ? "none" : names) +
-                             "; or \"gradient_magnitude\")");
-    }
   return scene;
 }
 

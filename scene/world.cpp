@@ -115,6 +115,7 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov) {
 
 World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
   m_camera = scene.camera;
+  m_sceneClip = scene.clip;
   Material fallback;
   fallback.name = "default";
   m_materials.push_back(fallback);
@@ -245,8 +246,32 @@ int World::gltfMaterial(size_t model, int index) {
   return slot;
 }
 
-RTCGeometry World::triangleGeometry(const TriangleMesh& mesh) const {
+namespace {
+
+// Hits on a clipped mesh outside the clip region (the geometry's user data) do not count. The
+// point is taken on the world ray in double (the iso-surface lanes carry it), at the hit's t,
+// which an instance's transform does not change.
+void clipFilter(const RTCFilterFunctionNArguments* args) {
+  const auto* clip = static_cast<const ClipRegion*>(args->geometryUserPtr);
+  const auto* context = reinterpret_cast<const IsoRayContext*>(args->context);
+  for (unsigned i = 0; i < std::min(args->N, unsigned(kPacketLanes)); ++i) {
+    if (args->valid[i] == 0) continue;
+    const IsoRayLane& lane = context->lanes[args->N == 1 ? 0 : i];
+    if (!lane.origin) continue;
+    const double t = RTCRayN_tfar(args->ray, args->N, i);
+    if (!clip->keeps(*lane.origin + lane.direction * t)) args->valid[i] = 0;
+  }
+}
+
+}  // namespace
+
+RTCGeometry World::triangleGeometry(const TriangleMesh& mesh, bool clipped) const {
   RTCGeometry geometry = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  if (clipped) {
+    rtcSetGeometryUserData(geometry, const_cast<ClipRegion*>(&m_sceneClip));
+    rtcSetGeometryIntersectFilterFunction(geometry, clipFilter);
+    rtcSetGeometryOccludedFilterFunction(geometry, clipFilter);
+  }
   auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                         3 * sizeof(float), mesh.positions.size()));
   for (size_t i = 0; i < mesh.positions.size(); ++i) {
@@ -299,6 +324,24 @@ void World::loadMeshes(const SceneDesc& scene) {
     auto materialOf = [&](const TriangleMesh& prim) {
       return desc.material.empty() ? gltfMaterial(modelIndex, prim.material) : materialFor(scene, desc.material);
     };
+    // The scene's clip region cuts meshes (no caps: a mesh is not a solid), except lights (their
+    // triangles are sampled whole) and meshes it keeps whole (a filter costs on every hit).
+    auto clipsMesh = [&](int material, const std::vector<Vec3d>& worldPoints) {
+      if (m_sceneClip.empty() || m_materials[size_t(material)].emits() || worldPoints.empty()) return false;
+      Vec3d lo = worldPoints[0], hi = worldPoints[0];
+      for (const Vec3d& p : worldPoints) lo = min(lo, p), hi = max(hi, p);
+      return m_sceneClip.classify(lo, hi, 0) != ClipRegion::BoxSide::Kept;
+    };
+    // The world positions of a mesh's every placement in the file.
+    auto placements = [&](size_t mesh, const TriangleMesh& prim) {
+      std::vector<Vec3d> points;
+      for (const GltfInstance& other : g.instances)
+        if (size_t(other.mesh) == mesh) {
+          const Transform t = desc.transform * other.toFile;
+          for (const Vec3f& p : prim.positions) points.push_back(t.point(Vec3d(p)));
+        }
+      return points;
+    };
 
     for (const GltfInstance& inst : g.instances) {
       const Transform toWorld = desc.transform * inst.toFile;
@@ -329,7 +372,8 @@ void World::loadMeshes(const SceneDesc& scene) {
             worldTriangles(*baked, Transform(), true, pending.back().triangles, pending.back().uvs);
             pending.back().material = rec.material;
           }
-          attach(m_scene, triangleGeometry(*baked), m_top, rec);
+          std::vector<Vec3d> points(baked->positions.begin(), baked->positions.end());
+          attach(m_scene, triangleGeometry(*baked, clipsMesh(rec.material, points)), m_top, rec);
           m_meshStore.push_back(std::move(baked));
         }
         continue;
@@ -341,7 +385,7 @@ void World::loadMeshes(const SceneDesc& scene) {
         for (const TriangleMesh& prim : prims) {
           m_meshStore.push_back(std::make_unique<TriangleMesh>(prim));
           stored[inst.mesh].push_back(m_meshStore.back().get());
-          RTCGeometry geometry = triangleGeometry(prim);
+          RTCGeometry geometry = triangleGeometry(prim, clipsMesh(materialOf(prim), placements(size_t(inst.mesh), prim)));
           rtcCommitGeometry(geometry);
           rtcAttachGeometry(shared[inst.mesh], geometry);
           rtcReleaseGeometry(geometry);
@@ -412,6 +456,10 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       rtcSetSceneFlags(target, RTC_SCENE_FLAG_ROBUST);
       m_subScenes.push_back(target);
     }
+    // The scene's and the volume's clip regions, in the grid's object space.
+    ClipRegion objectClip = scene.clip;
+    objectClip.add(desc.clip);
+    if (!vol.transform.isIdentity()) objectClip = objectClip.transformed(vol.toObject);
     for (size_t k = 0; k < desc.isosurfaces.size(); ++k) {
       const IsoSurfaceDesc& isoDesc = desc.isosurfaces[k];
       SurfaceInfo s;
@@ -434,7 +482,19 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
         m_materials.push_back(m);
         s.material = int(m_materials.size() - 1);
       }
-      s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector);
+      if (isoDesc.capColorBy) {
+        s.capColorBy = isoDesc.capColorBy;
+        const Vec3d n = s.capColorBy->nanColor;
+        s.capNanColor = {srgbToLinear(float(n.x)), srgbToLinear(float(n.y)), srgbToLinear(float(n.z))};
+      } else if (s.colorBy) {
+        s.capColorBy = s.colorBy;
+        s.capNanColor = s.nanColor;
+      }
+      s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector, objectClip,
+                                               isoDesc.solidAbove);
+      if (!s.surface->clip().empty() && s.material >= 0 && m_materials[size_t(s.material)].emits())
+        throw InputError(scene.path, desc.where + "/isosurfaces/" + std::to_string(k),
+                         "an emissive iso-surface cannot be clipped (its light would be sampled where it is cut away)");
       if (s.surface->activeBricks().empty()) {
         char line[256];
         const double lo = vol.bricks->minValue(), hi = vol.bricks->maxValue();
@@ -640,13 +700,14 @@ void packLane(const Ray& ray, int i, RTCRay8& packet) {
 
 // The iso-surface hit at `t` on `ray`; `normal` in the surface's object space.
 void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal,
-                       bool insideAfter, const Transform* toWorld, Hit& hit) const {
+                       bool insideAfter, bool cap, const Transform* toWorld, Hit& hit) const {
   const SurfaceInfo& info = m_surfaces[surface];
   hit.t = float(t);
   hit.material = info.material;
   hit.surface = surface;
   hit.tError = tError;
   hit.insideAfter = insideAfter;
+  hit.cap = cap;
   // In double from the double origin: the bound is the intersector's, plus double rounding.
   const Vec3d org = ray.origin(), dir(ray.dir);
   hit.position64 = org + dir * t;
@@ -673,12 +734,15 @@ void World::fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3
   }
   const double gridRounding = 8 * 0x1p-24 * (std::max({g.x, g.y, g.z}) + 1) * scale;
   hit.spawnOffset = float(std::min(dot(absv(Vec3d(hit.normal)), Vec3d(hit.pError)), gridRounding));
+  // A cap is exact to double rounding; a ray leaving it starts off its plane along the normal by
+  // the float traversal's rounding, far enough that its own clip extent is decided on its side.
+  if (cap) hit.spawnOffset = float(gridRounding);
   if (!info.solidAbove) hit.normal = -hit.normal;
   // The shading normal: the smooth gradient at the hit (the cell's own gradient jumps across
   // cell faces, which shades in facets). It only shades; orientation, spawning and the class
   // stay with the exact surface's geometric normal, which it may not contradict.
   hit.shading = hit.normal;
-  if (info.smoothNormals) {
+  if (info.smoothNormals && !cap) {  // (a cap is flat)
     Vec3d n = -grid.smoothGradient(gridCoord) / grid.spacing();
     if (toWorld) n = toWorld->normal(n);
     if (!info.solidAbove) n = -n;
@@ -701,7 +765,7 @@ bool World::crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& sta
     *hit = Hit();
     hit->incoming = ray.dir;
     const Transform& toWorld = m_volumes[m_surfaces[ray.fromSurface].volume].transform;
-    fillIsoHit(ray, ray.fromSurface, sh.t, float(sh.tError), Vec3d(sh.normal), sh.insideAfter,
+    fillIsoHit(ray, ray.fromSurface, sh.t, float(sh.tError), Vec3d(sh.normal), sh.insideAfter, sh.cap,
                toWorld.isIdentity() ? nullptr : &toWorld, *hit);
   }
   return true;
@@ -813,7 +877,7 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   if (!rec.mesh) {
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
     fillIsoHit(ray, rec.surface, lane.t, lane.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
-               lane.insideAfter, rec.identity ? nullptr : &rec.toWorld, hit);
+               lane.insideAfter, lane.cap, rec.identity ? nullptr : &rec.toWorld, hit);
     return;
   }
   hit.t = rh.ray.tfar;
@@ -997,9 +1061,8 @@ bool World::gridCoordinates(int volume, const Vec3d& world, Vec3d& g) const {
   return true;
 }
 
-double World::colorValue(const SurfaceInfo& s, const Vec3d& world) const {
-  const ColorByDesc& c = *s.colorBy;
-  const int volume = c.volume >= 0 ? c.volume : s.volume;
+double World::colorValue(const ColorByDesc& c, int ownVolume, const Vec3d& world) const {
+  const int volume = c.volume >= 0 ? c.volume : ownVolume;
   Vec3d g;
   if (!gridCoordinates(volume, world, g)) return NAN;
   const VolumeInfo& vol = m_volumes[size_t(volume)];
@@ -1026,9 +1089,9 @@ Vec3f World::albedo(const Hit& hit) const {
     return m_slices[size_t(hit.slice)].emit ? Vec3f{0, 0, 0} : sliceColor(hit);
   if (hit.surface >= 0) {
     const SurfaceInfo& s = m_surfaces[size_t(hit.surface)];
-    if (s.colorBy) {
-      const double v = colorValue(s, hit.position64);
-      return std::isfinite(v) ? s.colorBy->map.linear(v, s.colorBy->lo, s.colorBy->hi) : s.nanColor;
+    if (const std::optional<ColorByDesc>& by = hit.cap ? s.capColorBy : s.colorBy) {
+      const double v = colorValue(*by, s.volume, hit.position64);
+      return std::isfinite(v) ? by->map.linear(v, by->lo, by->hi) : hit.cap ? s.capNanColor : s.nanColor;
     }
   }
   const Material& m = m_materials[hit.material];
@@ -1095,7 +1158,7 @@ Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
   const double spacing = hit.surface >= 0 ? 0x1p-52 : 0x1p-23;
   const double floor = std::max(std::max({a.x, a.y, a.z}) * spacing, 1e-20);
   const double d = std::max(hit.surface >= 0 ? double(hit.spawnOffset) : dot(absv(n), Vec3d(hit.pError)), floor);
-  if (hit.surface >= 0 && length(Vec3d(hit.incoming)) > 0) {
+  if (hit.surface >= 0 && !hit.cap && length(Vec3d(hit.incoming)) > 0) {
     // An iso-surface's origin moves along the incoming ray, on whose line the crossing and its
     // class were decided: forward past the hit for a ray that goes through, back for one that
     // turns back. Along the normal it could land on the wrong side where the hit sits on a

@@ -41,6 +41,7 @@ struct Hit {
   float spawnOffset = 0;  // iso-surfaces: how far a ray leaving the hit starts off it
   Vec3f incoming;        // direction of the ray that made the hit
   bool insideAfter = false;  // iso-surfaces: the ray is inside (value > iso) just past the hit
+  bool cap = false;          // iso-surfaces: a cap, where a clip plane cuts the solid open
 };
 
 struct SurfaceInfo {
@@ -54,6 +55,9 @@ struct SurfaceInfo {
   // "color_by": the base colour from a colour map of a field at the hit (World::albedo).
   std::optional<ColorByDesc> colorBy;
   Vec3f nanColor;  // colorBy->nanColor in linear light
+  // "cap_color_by": the same for the surface's caps (default: colorBy).
+  std::optional<ColorByDesc> capColorBy;
+  Vec3f capNanColor;
 };
 
 // A slice plane of a volume as built: its polygon inside the grid is a mesh in the scene.
@@ -125,7 +129,8 @@ class World {
   Bsdf bsdf(const Hit& hit) const;
   Vec3f albedo(const Hit& hit) const;
   // The value "color_by" maps at an iso-surface hit (NaN where its field has none).
-  double colorValue(const SurfaceInfo& s, const Vec3d& world) const;
+  // `ownVolume`: the surface's own volume (for "gradient_magnitude").
+  double colorValue(const ColorByDesc& c, int ownVolume, const Vec3d& world) const;
   Vec3f emitted(const Hit& hit, const Vec3f& wo) const;
   // Radiance from the environment lights along `dir` (a ray that escaped).
   Vec3f environment(const Vec3f& dir) const;
@@ -171,7 +176,8 @@ class World {
   void loadMeshes(const SceneDesc& scene);
   void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes);
   void buildSlices(const SceneDesc& scene);
-  RTCGeometry triangleGeometry(const TriangleMesh& mesh) const;  // Embree triangles of `mesh`
+  // Embree triangles of `mesh`; `clipped`: hits outside the scene's clip region are ignored.
+  RTCGeometry triangleGeometry(const TriangleMesh& mesh, bool clipped = false) const;
   // A world point in volume `volume`'s grid coordinates; false if it lies outside the grid
   // (beyond rounding of the point).
   bool gridCoordinates(int volume, const Vec3d& world, Vec3d& g) const;
@@ -195,7 +201,7 @@ class World {
   };
   bool packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
                 RTCRay8& packet) const;
-  void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter,
+  void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter, bool cap,
                   const Transform* toWorld, Hit& hit) const;
   bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;
   Ray startInsideVolume(const Ray& ray) const;
@@ -213,6 +219,7 @@ class World {
   std::vector<VolumeInfo> m_volumes;
   std::vector<SurfaceInfo> m_surfaces;
   std::vector<SliceInfo> m_slices;
+  ClipRegion m_sceneClip;  // the scene's "clip" (world space): meshes and every volume
   std::vector<Material> m_materials;
   std::vector<Texture> m_textures;
   std::vector<std::tuple<size_t, int, bool>> m_textureKeys;  // (model, glTF texture, sRGB)

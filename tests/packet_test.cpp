@@ -29,7 +29,7 @@ bool sameBits(const T& a, const T& b) {
                     sameBits(a.dpdv, b.dpdv) && sameBits(a.uv, b.uv) && a.material == b.material &&
                     a.surface == b.surface && a.mesh == b.mesh && a.light == b.light && a.triangle == b.triangle &&
                     sameBits(a.b1, b.b1) && sameBits(a.b2, b.b2) && sameBits(a.spawnOffset, b.spawnOffset) &&
-                    sameBits(a.incoming, b.incoming) && a.insideAfter == b.insideAfter;
+                    sameBits(a.incoming, b.incoming) && a.insideAfter == b.insideAfter && a.cap == b.cap;
   if (same) return ::testing::AssertionSuccess();
   return ::testing::AssertionFailure() << "fields t/normal/shading/position64/tError/insideAfter same: "
                                        << sameBits(a.t, b.t) << sameBits(a.normal, b.normal) << sameBits(a.shading, b.shading)
@@ -104,7 +104,11 @@ Counts comparePacketsWithSingleRays(const SceneDesc& scene, int w, int h, uint32
 // Moves everything the scene places by `offset` (meshes, volumes, camera, point lights).
 SceneDesc moved(SceneDesc scene, const Vec3d& offset) {
   for (MeshDesc& m : scene.meshes) m.transform = Transform::translate(offset) * m.transform;
-  for (VolumeDesc& v : scene.volumes) v.transform = Transform::translate(offset) * v.transform;
+  for (VolumeDesc& v : scene.volumes) {
+    v.transform = Transform::translate(offset) * v.transform;
+    v.clip = v.clip.transformed(Transform::translate(offset));
+  }
+  scene.clip = scene.clip.transformed(Transform::translate(offset));
   scene.camera.position = scene.camera.position + offset;
   scene.camera.lookAt = scene.camera.lookAt + offset;
   for (LightDesc& l : scene.lights) l.position = l.position + offset;
@@ -113,7 +117,8 @@ SceneDesc moved(SceneDesc scene, const Vec3d& offset) {
 
 TEST(Packets, SameHitsAsSingleRaysOnRealMeshesAndVolumes) {
   const std::string root = ISOTRACE_SOURCE_DIR;
-  for (const char* file : {"/examples/default.json", "/bench/scenes/neghip.json", "/bench/scenes/lidc2.json"}) {
+  for (const char* file : {"/examples/default.json", "/bench/scenes/neghip.json", "/bench/scenes/lidc2.json",
+                           "/examples/ct_chest_cut.json"}) {
     const SceneDesc scene = parseSceneFile(root + file);
     for (const Vec3d offset : {Vec3d{0, 0, 0}, Vec3d{1e5, -1e5, 1e5}}) {
       SCOPED_TRACE(std::string(file) + " offset " + std::to_string(offset.x));

@@ -27,6 +27,9 @@ class BrickGrid {
   // Bricks that can hold a crossing of `iso`: min <= iso <= max, not all equal to iso (inside
   // means > iso; a brick whose max is iso holds a crossing on its boundary).
   std::vector<uint32_t> activeBricks(float iso) const;
+  // Brick b's value range.
+  float brickMin(uint32_t b) const { return m_lo[b]; }
+  float brickMax(uint32_t b) const { return m_hi[b]; }
   size_t bytes() const { return m_lo.size() * 2 * sizeof(float); }
   // The grid's value range (every sample is some brick's corner).
   float minValue() const { return m_min; }

@@ -49,16 +49,55 @@ GridRay<Real> queryRay(const Grid& grid, const Vec3d& org, const Vec3d& dir, dou
 
 }  // namespace
 
-IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec)
-    : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec),
-      m_active(bricks.activeBricks(float(iso))), m_primitiveOf(bricks.size(), -1) {
+IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec,
+                       const ClipRegion& clip, bool solidAbove)
+    : m_grid(grid), m_bricks(bricks), m_iso(iso), m_spec(spec), m_primitiveOf(bricks.size(), -1),
+      m_air(solidAbove ? StartClass::Outside : StartClass::Inside) {
+  // With a clip region: bricks wholly cut away hold nothing; bricks the region's boundary meets
+  // (within a cell: the float ray's cell at a plane is off by far less) hold caps, so they are
+  // primitives even where their field is uniformly solid, over their whole box (a cap can lie in
+  // a uniform cell); bricks wholly kept are as without a clip.
+  std::vector<bool> wholeBox;
+  const float isoF = float(iso);
+  if (!clip.empty()) {
+    const Vec3d s = grid.spacing();
+    const double margin = std::max({s.x, s.y, s.z});
+    bool cutsSomething = false;
+    for (uint32_t b = 0; b < bricks.size(); ++b) {
+      const Vec3d lo = grid.origin() + Vec3d(bricks.cellBegin(b)) * s, hi = grid.origin() + Vec3d(bricks.cellEnd(b)) * s;
+      const float bmin = bricks.brickMin(b), bmax = bricks.brickMax(b);
+      const bool active = bmin <= isoF && bmax >= isoF && !(bmin == isoF && bmax == isoF);
+      const bool solid = solidAbove ? bmin > isoF : bmax < isoF;
+      switch (clip.classify(lo, hi, margin)) {
+        case ClipRegion::BoxSide::Kept:
+          if (active) m_active.push_back(b), wholeBox.push_back(false);
+          break;
+        case ClipRegion::BoxSide::Cut:
+          cutsSomething = true;
+          break;
+        case ClipRegion::BoxSide::Boundary:
+          cutsSomething = true;
+          if (active || solid) m_active.push_back(b), wholeBox.push_back(true);
+          break;
+      }
+    }
+    if (cutsSomething) {
+      m_clip = clip;
+    } else {
+      m_active.clear();
+      wholeBox.clear();
+    }
+  }
+  if (m_clip.empty()) {
+    m_active = bricks.activeBricks(isoF);
+    wholeBox.assign(m_active.size(), false);
+  }
   // The uniform cells of every active brick. A corner counts as strictly above (below) only if
   // it is in float and in double, so the table holds for the float and the double traversal.
   // The other cells span the brick's tight box: outside it every cell is of one strict class,
   // so a traversal of the box alone finds the same crossings (it enters the box through a face
   // whose class it evaluates, or takes from the cell behind where that face is exactly on the
   // surface, as at a brick seam), and Embree culls rays that only cross the uniform part.
-  const float isoF = float(iso);
   m_primitives.resize(m_active.size());
   m_cellClasses.resize(m_active.size());
   withCellAccess(grid, nullptr, {}, [&](const auto& cells) {
@@ -87,22 +126,86 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
               hi = max(hi, Vec3i{x + 1, y + 1, z + 1});
             }
           }
-      if (!(lo.x < hi.x)) lo = c0, hi = c1;  // cannot happen for an active brick; stay safe
+      if (!(lo.x < hi.x) || wholeBox[i]) lo = c0, hi = c1;  // (the first cannot happen for an active brick)
       m_primitives[i] = {lo, hi, c0, surfaceCells};
     });
   });
   for (size_t i = 0; i < m_active.size(); ++i) m_primitiveOf[m_active[i]] = int32_t(i);
 }
 
-void IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
+bool IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
                                GridRayCache& cache) const {
-  if (cache.surface == this) return;
+  if (cache.surface == this) return false;
   // The float ray is the double one rounded (what queryRay<float> gives); the double one
   // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
   const GridRay<double> ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
   cache.surface = this;
   cache.ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
   cache.exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
+  return true;
+}
+
+// The clip region keeps [k0, k1] of the ray. A ray that starts in the solid (a given class) starts
+// in the kept region, wherever rounding put its origin: it continues from a cap it went through
+// or turned back at, a spawn offset away from the plane at most. Where it enters the kept region
+// inside the grid, the class there is the field's, in double, in the cell the walk starts in (as
+// the walk's begin() finds cells, on the walk's own ray), so the cap and the walk behind it agree.
+template <typename Real, typename Cells>
+ClipSpan IsoSurface::clipSpan(const Cells& cells, const GridRay<Real>& ray, const Vec3d& exactOrg,
+                              const Vec3d& exactDir, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
+                              StartClass start) const {
+  ClipSpan span;
+  double k0, k1;
+  m_clip.extent(org, dir, k0, k1, span.plane0, span.plane1);
+  span.tnear = tnear;
+  span.tfar = tfar;
+  if (start != StartClass::Unknown && start != m_air) {
+    if (!(tnear <= k1)) {
+      span.kind = ClipSpan::Kind::CrossAtStart;
+      return span;
+    }
+    k0 = std::min(k0, tnear);
+  }
+  if (!(k0 <= k1) || !(k0 <= tfar) || !(k1 >= tnear) || !(tnear <= tfar)) {
+    span.kind = ClipSpan::Kind::Empty;
+    return span;
+  }
+  if (k1 < tfar) span.tfar = k1, span.leaves = true;
+  if (!(k0 > tnear)) return span;
+  span.tnear = k0;
+  // Does the walk's ray meet the grid's box at k0 (its begin() would start inside, not at a face)?
+  const Real tk = Real(k0);
+  const Vec3i dims = m_grid.dims();
+  for (int a = 0; a < 3; ++a) {
+    const Real hi = Real(dims[a] - 1);
+    if (ray.dir[a] == Real(0)) {
+      if (ray.org[a] < Real(0) || ray.org[a] > hi) return span;
+      continue;
+    }
+    const bool pos = ray.dir[a] > Real(0);
+    if (ray.planeT(a, pos ? 0 : dims[a] - 1) > tk || ray.planeT(a, pos ? dims[a] - 1 : 0) < tk) return span;
+  }
+  span.enters = true;
+  for (int a = 0; a < 3; ++a)
+    span.startCell[a] = int(std::clamp(ray.org[a] + tk * ray.dir[a], Real(0), Real(dims[a] - 2)));
+  const int c = exactEndClass(cells, ExactEnds{exactOrg, exactDir, m_iso, k0, k1}, span.startCell, k0, -1, 0);
+  span.startClass = c > 0 ? StartClass::Inside : c < 0 ? StartClass::Outside : m_air;
+  return span;
+}
+
+void IsoSurface::capHit(const Vec3d& org, const Vec3d& dir, double t, int plane, bool intoSolid, SurfaceHit& hit) const {
+  hit = SurfaceHit();
+  hit.t = t;
+  // t = gap / (n . d) in double: a few roundings of the origin's and t's magnitude.
+  const double originScale = std::max({std::fabs(org.x), std::fabs(org.y), std::fabs(org.z)}) / length(dir);
+  hit.tError = 16 * 0x1p-52 * (originScale + std::fabs(t));
+  // Out of the solid is out of the kept region: the plane's normal. (SurfaceHit's normal points
+  // to lower values: out of the solid only when the solid lies above.)
+  const Vec3d n = plane >= 0 ? m_clip.planes()[size_t(plane)].normal : -normalize(dir);
+  hit.normal = Vec3f(m_air == StartClass::Outside ? n : -n);
+  hit.insideAfter = intoSolid == (m_air == StartClass::Outside);
+  hit.segmentStart = t;
+  hit.cap = true;
 }
 
 template <typename Real, typename Cells>
@@ -132,17 +235,76 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       CellHit<Real> cellHit;
+      std::optional<GridRayCache> local;  // made only for a float query without a cache of its own
+      GridRay<double> ray64;
+      const GridRay<Real>* ray;
+      const ExactEnds* exact = nullptr;
+      ClipSpan localSpan;
+      const ClipSpan* span = nullptr;
       if constexpr (std::is_same_v<Real, float>) {
-        std::optional<GridRayCache> local;  // made only for a query without a cache of its own
         GridRayCache& c = cache ? *cache : local.emplace();
-        floatQueryRay(org, dir, tnear, tfar, start, c);
-        if (!traverseCells<AnyHit>(cells, float(m_iso), c.ray, lo, hi, float(tnear), float(tfar), solver, cellHit,
-                                   stats, start, &c.exact, float(tstop)))
-          return false;
+        const bool fresh = floatQueryRay(org, dir, tnear, tfar, start, c);
+        if (fresh && !m_clip.empty()) {
+          c.clip = clipSpan(cells, c.ray, c.exact.org, c.exact.dir, org, dir, tnear, tfar, start);
+          c.exact.tnear = c.clip.tnear;
+          c.exact.tfar = c.clip.tfar;
+        }
+        ray = &c.ray;
+        exact = &c.exact;
+        if (!m_clip.empty()) span = &c.clip;
       } else {
-        const GridRay<double> ray = queryRay<double>(m_grid, org, dir, tnear, start);
-        if (!traverseCells<AnyHit>(cells, m_iso, ray, lo, hi, tnear, tfar, solver, cellHit, stats, start, nullptr, tstop))
-          return false;
+        ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
+        ray = &ray64;
+        if (!m_clip.empty()) {
+          localSpan = clipSpan(cells, ray64, ray64.org, ray64.dir, org, dir, tnear, tfar, start);
+          span = &localSpan;
+        }
+      }
+      Real t0 = Real(tnear), t1 = Real(tfar);
+      const Vec3i* startCell = nullptr;
+      Vec3i c0;
+      if (span) {
+        // A clipped surface: caps where the ray enters or leaves the kept region in the solid,
+        // the walk in between.
+        switch (span->kind) {
+          case ClipSpan::Kind::Empty: return false;
+          case ClipSpan::Kind::CrossAtStart:
+            if constexpr (!AnyHit) capHit(org, dir, tnear, span->plane1, false, *hit);
+            return true;
+          case ClipSpan::Kind::Walk: break;
+        }
+        t0 = Real(span->tnear);
+        t1 = Real(span->tfar);
+        if (span->enters) {
+          // Only cells the walk from the start cell reaches: none behind it on an axis the ray moves along.
+          c0 = span->startCell;
+          const bool owner = c0.x >= lo.x && c0.y >= lo.y && c0.z >= lo.z && c0.x < hi.x && c0.y < hi.y && c0.z < hi.z;
+          for (int a = 0; a < 3; ++a) {
+            if (!(ray->dir[a] < Real(0))) lo[a] = std::max(lo[a], c0[a]);
+            if (!(ray->dir[a] > Real(0))) hi[a] = std::min(hi[a], c0[a] + 1);
+            if (lo[a] >= hi[a]) return false;
+          }
+          if (owner) {
+            if (span->startClass != m_air) {  // the ray enters the solid through a cap
+              if constexpr (!AnyHit) capHit(org, dir, span->tnear, span->plane0, true, *hit);
+              return true;
+            }
+            startCell = &c0;
+            start = span->startClass;
+          } else {
+            // Another brick: entered through a face, from the start cell's side.
+            t0 = Real(tnear);
+            start = StartClass::Unknown;
+          }
+        }
+      }
+      int endClass = 0;
+      if (!traverseCells<AnyHit>(cells, Real(m_iso), *ray, lo, hi, t0, t1, solver, cellHit, stats, start, exact,
+                                 Real(tstop), startCell, span && span->leaves ? &endClass : nullptr)) {
+        // The walk reached the end of the kept region in the solid: the ray leaves through a cap.
+        if (endClass == 0 || (endClass > 0 ? StartClass::Inside : StartClass::Outside) == m_air) return false;
+        if constexpr (!AnyHit) capHit(org, dir, span->tfar, span->plane1, false, *hit);
+        return true;
       }
       if constexpr (!AnyHit) surfaceHit(cells, cellHit, dir, *hit);
       return true;
@@ -162,7 +324,8 @@ template <bool AnyHit>
 uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin,
                                  const PacketLane* lanes, uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const {
   uint32_t found = 0;
-  if (m_spec.kind == IntersectorKind::Reference) {  // double precision: lane by lane
+  // Double precision, or a clipped surface (whose caps and spans are the scalar query's): lane by lane.
+  if (m_spec.kind == IntersectorKind::Reference || !m_clip.empty()) {
     for (uint32_t rest = mask; rest; rest &= rest - 1) {
       const int l = __builtin_ctz(rest);
       const PacketLane& r = lanes[l];
@@ -184,7 +347,7 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
       for (uint32_t rest = mask; rest; rest &= rest - 1) {
         const int l = __builtin_ctz(rest);
         const PacketLane& r = lanes[l];
-        GridRayCache& c = r.cache ? *r.cache : local.emplace(l);
+            GridRayCache& c = r.cache ? *r.cache : local.emplace(l);
         floatQueryRay(r.org, r.dir, r.tnear, r.tfar, r.start, c);
         CellWalk<float, Cells>& walk = walks.emplace(l, cells, float(m_iso), c.ray, lo, hi, float(r.tnear),
                                                      float(r.tfar), r.start, &c.exact, float(r.tstop));
@@ -264,6 +427,22 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
                                         double tfar, StartClass start, SurfaceHit* hit,
                                         TraversalStats& stats) const {
   if (start == StartClass::Unknown || !(tnear <= tfar)) return false;
+  if (!m_clip.empty()) {
+    // A ray from the solid starts in the kept region (clipSpan), unless it lies past it: then it
+    // leaves the solid at once. A ray from outside the solid that starts outside the region
+    // meets the solid only at a cap, which the brick queries find.
+    double k0, k1;
+    int plane0, plane1;
+    m_clip.extent(org, dir, k0, k1, plane0, plane1);
+    if (start != m_air) {
+      if (!(tnear <= k1)) {
+        if (hit) capHit(org, dir, tnear, plane1, false, *hit);
+        return true;
+      }
+    } else if (!(k0 <= tnear && tnear <= k1)) {
+      return false;
+    }
+  }
   // The common case first, in double: a start well inside the tight box of an active brick
   // (a ray leaving the surface starts next to its hit, in a surface cell). Its margin is four
   // times the rounding of the float grid ray below, so that ray's start cell lies in that box
@@ -417,6 +596,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     lane.t = hit.t;
     lane.insideAfter = hit.insideAfter;
     lane.segmentStart = hit.segmentStart;
+    lane.cap = hit.cap;
   }
 }
 

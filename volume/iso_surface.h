@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "volume/bricks.h"
+#include "volume/clip.h"
 #include "volume/transform.h"
 #include "volume/traversal.h"
 
@@ -22,6 +23,29 @@ struct SurfaceHit {
   // Where the hit's cell segment begins (t along the ray): of two hits at the same float t
   // (a close pair on both sides of a brick seam), the one from the earlier cell comes first.
   double segmentStart = 0;
+  bool cap = false;  // a clipped surface's cap: the hit lies on a clip plane (the normal is its normal)
+};
+
+// A clipped surface's view of one ray (IsoSurface::clipSpan): the extent of the query the clip
+// region keeps, and where the ray enters that region inside the grid, the class there. Every
+// brick query of the ray reads the same span, so they all agree on where caps are.
+struct ClipSpan {
+  enum class Kind : signed char {
+    Empty,         // nothing of the query's extent is kept (and it does not start in the solid)
+    CrossAtStart,  // the ray starts in the solid but past the kept region: it leaves the solid at tnear
+    Walk,          // walk [tnear, tfar]
+  };
+  Kind kind = Kind::Walk;
+  double tnear = 0, tfar = 0;
+  // The ray enters the kept region at tnear inside the grid: its walk starts in `startCell`
+  // in `startClass` (the field's class there, in double), with a cap there if that is the solid.
+  bool enters = false;
+  Vec3i startCell;
+  StartClass startClass = StartClass::Unknown;
+  // The kept region ends at tfar before the query's end: a cap there if the walk reaches it in
+  // the solid.
+  bool leaves = false;
+  int plane0 = -1, plane1 = -1;  // the clip planes at tnear (enters) and tfar (leaves, CrossAtStart)
 };
 
 class IsoSurface;
@@ -32,6 +56,7 @@ struct GridRayCache {
   const IsoSurface* surface = nullptr;  // the surface whose grid the rest is in; none yet: null
   GridRay<float> ray;                   // what the float traversal walks
   ExactEnds exact;  // the same ray in double with its extent: the float traversal's exact ends
+  ClipSpan clip;    // a clipped surface's span of the ray
 };
 // What the iso-surface callbacks know of one ray of a query, and what they write back: lane i
 // of a packet traced by rtcIntersect8 / rtcOccluded8 (World::intersectPacket), or the one ray
@@ -60,6 +85,7 @@ struct IsoRayLane {
   // two hits at the same float t the one of the cell first along the ray is kept (see
   // SurfaceHit::segmentStart). None yet: infinity.
   double segmentStart = INFINITY;
+  bool cap = false;
   GridRayCache gridRay;
 };
 struct IsoRayContext {
@@ -71,12 +97,19 @@ struct IsoRayContext {
 
 class IsoSurface {
  public:
-  IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec);
+  // `clip` (in the grid's object space, the space of its origin and spacing): the surface is the
+  // boundary of the solid (value > iso if `solidAbove`, else value < iso) within the clip region,
+  // closed by caps on the clip planes where they pass through the solid. A region that keeps
+  // the whole grid is dropped (it costs nothing).
+  IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, IntersectorSpec spec,
+             const ClipRegion& clip = {}, bool solidAbove = true);
 
   double iso() const { return m_iso; }
   const IntersectorSpec& intersector() const { return m_spec; }
   const Grid& grid() const { return m_grid; }
   const std::vector<uint32_t>& activeBricks() const { return m_active; }
+  const ClipRegion& clip() const { return m_clip; }
+  bool solidAbove() const { return m_air == StartClass::Outside; }
   size_t totalBricks() const { return m_bricks.size(); }
 
   // Queries on a world-space ray over the whole grid, without Embree (tests, benchmarks,
@@ -150,9 +183,17 @@ class IsoSurface {
   template <bool AnyHit>
   uint32_t packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i classOrigin, const PacketLane* lanes,
                        uint32_t mask, SurfaceHit* hits, TraversalStats& stats) const;
-  // The float grid ray of a query and the double one's ends, in `cache` (unless it holds them).
-  void floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
+  // The float grid ray of a query and the double one's ends, in `cache` (unless it holds them):
+  // true if it was computed now.
+  bool floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start,
                      GridRayCache& cache) const;
+  // A clipped surface's span of a query (`ray`: the grid ray the walk takes; `exactOrg`/`exactDir`:
+  // the same in double).
+  template <typename Real, typename Cells>
+  ClipSpan clipSpan(const Cells& cells, const GridRay<Real>& ray, const Vec3d& exactOrg, const Vec3d& exactDir,
+                    const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start) const;
+  // A cap at t on clip plane `plane`, leaving the ray in the solid (`intoSolid`) or out of it.
+  void capHit(const Vec3d& org, const Vec3d& dir, double t, int plane, bool intoSolid, SurfaceHit& hit) const;
   // A cell hit as a world-space SurfaceHit (the normal from the cell's gradient).
   template <typename Real, typename Cells>
   void surfaceHit(const Cells& cells, const CellHit<Real>& cellHit, const Vec3d& dir, SurfaceHit& hit) const;
@@ -181,6 +222,8 @@ class IsoSurface {
   std::vector<int32_t> m_primitiveOf;  // per brick: index into m_primitives, or -1
   std::vector<Primitive> m_primitives;
   std::vector<CellClasses> m_cellClasses;
+  ClipRegion m_clip;
+  StartClass m_air = StartClass::Outside;  // the class outside the solid (and the clip region)
   Transform m_worldToObject;
   bool m_instanced = false;
   double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances

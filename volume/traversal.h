@@ -278,10 +278,13 @@ class CellWalk {
   CellWalk() = default;
   // `tstop`: the walk may stop before a cell that begins past it (a closest hit is known there);
   // the cells before it are cut at tfar as always, so a hit does not depend on tstop.
+  // `startCell` (a clipped surface's walk from where the ray enters the kept region): the walk
+  // starts at tnear in that cell of the box, with `start` given, whatever the box's faces say.
   CellWalk(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi, Real tnear, Real tfar,
-           StartClass start, const ExactEnds* exact, Real tstop = std::numeric_limits<Real>::infinity())
-      : m_cells(&cells), m_ray(&ray), m_exact(exact), m_iso(iso), m_tnear(tnear), m_tfar(tfar), m_tstop(tstop),
-        m_lo(lo), m_hi(hi), m_start(start) {}
+           StartClass start, const ExactEnds* exact, Real tstop = std::numeric_limits<Real>::infinity(),
+           const Vec3i* startCell = nullptr)
+      : m_cells(&cells), m_ray(&ray), m_exact(exact), m_startCell(startCell), m_iso(iso), m_tnear(tnear),
+        m_tfar(tfar), m_tstop(tstop), m_lo(lo), m_hi(hi), m_start(start) {}
 
   // Clips the ray to the box and finds its first cell; false if it has none.
   ISO_INLINE bool begin() {
@@ -301,6 +304,13 @@ class CellWalk {
       if (tl > t0) { t0 = tl; entryAxis = a; }
       t1 = std::min(t1, th);
     }
+    if (m_startCell) {
+      // (Rounding can put the box's entry just past tnear, or its exit just before it: the cell
+      // holds tnear by the caller's decision, and its segment is then of zero length.)
+      t0 = m_tnear;
+      entryAxis = -1;
+      t1 = std::max(t1, t0);
+    }
     if (!(t0 <= t1)) {
       // A ray continuing from a hit may start on the box's boundary heading out (IsoSurface moves
       // starts that left the box onto it), where rounding in planeT can put t1 just below t0.
@@ -318,7 +328,9 @@ class CellWalk {
     const Real inf = std::numeric_limits<Real>::infinity();
     for (int a = 0; a < 3; ++a) {
       const bool pos = ray.dir[a] > Real(0);
-      if (a == entryAxis) {
+      if (m_startCell) {
+        m_cell[a] = (*m_startCell)[a];
+      } else if (a == entryAxis) {
         m_cell[a] = pos ? lo[a] : hi[a] - 1;
       } else {
         const Real p = ray.org[a] + t0 * ray.dir[a];
@@ -463,6 +475,12 @@ class CellWalk {
     hit.insideAfter = root.tangent ? isInside(m_seg.f0) : !isInside(m_seg.f0);
   }
 
+  // After advance() returned false: +1 (-1) if the walk ended at tfar inside its box (not
+  // leaving it through a face, not stopped at tstop) in the class value > iso (< iso), else 0.
+  ISO_INLINE int endClass() const {
+    return m_throughFace || !(m_t1 == m_tfar) ? 0 : m_carried > Real(0) ? 1 : -1;
+  }
+
   // On to the next cell; false when the walk is over (no crossing).
   ISO_INLINE bool advance() {
     m_startGiven = false;
@@ -513,6 +531,7 @@ class CellWalk {
   const Cells* m_cells = nullptr;
   const GridRay<Real>* m_ray = nullptr;
   const ExactEnds* m_exact = nullptr;
+  const Vec3i* m_startCell = nullptr;
   Real m_iso = 0, m_tnear = 0, m_tfar = 0, m_tstop = 0;
   Vec3i m_lo, m_hi;
   StartClass m_start = StartClass::Unknown;
@@ -535,8 +554,10 @@ template <bool AnyHit, typename Real, typename Intersector, typename Cells>
 bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i lo, Vec3i hi,
                    Real tnear, Real tfar, const Intersector& solver, CellHit<Real>& hit,
                    TraversalStats& stats, StartClass start = StartClass::Unknown,
-                   const ExactEnds* exact = nullptr, Real tstop = std::numeric_limits<Real>::infinity()) {
-  CellWalk<Real, Cells> walk(cells, iso, ray, lo, hi, tnear, tfar, start, exact, tstop);
+                   const ExactEnds* exact = nullptr, Real tstop = std::numeric_limits<Real>::infinity(),
+                   const Vec3i* startCell = nullptr, int* endClass = nullptr) {
+  CellWalk<Real, Cells> walk(cells, iso, ray, lo, hi, tnear, tfar, start, exact, tstop, startCell);
+  if (endClass) *endClass = 0;
   if (!walk.begin()) return false;
   do {
     switch (walk.visit(stats)) {
@@ -558,6 +579,7 @@ bool traverseCells(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i
         break;
     }
   } while (walk.advance());
+  if (endClass) *endClass = walk.endClass();
   return false;
 }
 
