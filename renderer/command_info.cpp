@@ -93,10 +93,23 @@ int info(const std::string& path, const SceneOverrides& overrides) {
       if (sl.volume == int(v))
         std::printf("    slice: %zu triangles, %s over [%g, %g]%s\n", sl.triangles, sl.map.name().c_str(), sl.lo, sl.hi,
                     sl.emit ? ", emitting (unlit)" : "");
-    for (const SurfaceInfo& si : world.surfaces())
-      if (si.volume == int(v) && si.colorBy)
+    for (const SurfaceInfo& si : world.surfaces()) {
+      if (si.volume != int(v)) continue;
+      if (si.colorBy)
         std::printf("    iso-surface %g coloured by %s through %s over [%g, %g]\n", si.iso, si.colorBy->fieldName.c_str(),
                     si.colorBy->map.name().c_str(), si.colorBy->lo, si.colorBy->hi);
+      const ClipRegion& clip = si.surface->clip();
+      if (clip.empty()) {
+        if (!scene.clip.empty() || !scene.volumes[v].clip.empty())
+          std::printf("    iso-surface %g: the clip keeps its whole grid (not applied)\n", si.iso);
+        continue;
+      }
+      std::printf("    iso-surface %g clipped by %zu planes, capped", si.iso, clip.planes().size());
+      if (si.capColorBy)
+        std::printf("; caps coloured by %s through %s over [%g, %g]", si.capColorBy->fieldName.c_str(),
+                    si.capColorBy->map.name().c_str(), si.capColorBy->lo, si.capColorBy->hi);
+      std::printf("\n");
+    }
   }
   std::printf("  materials in use: %zu\n", world.materials().size());
   const size_t shown = std::min<size_t>(world.materials().size(), 12);

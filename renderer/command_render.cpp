@@ -67,8 +67,12 @@ std::vector<Legend> legendsOf(const World& world, const SceneDesc& scene) {
       if (l.title == title && l.map.name() == map.name() && l.lo == lo && l.hi == hi) return;
     legends.push_back({title, map, lo, hi});
   };
-  for (const SurfaceInfo& s : world.surfaces())
+  for (const SurfaceInfo& s : world.surfaces()) {
     if (s.colorBy) add(s.colorBy->fieldName, s.colorBy->map, s.colorBy->lo, s.colorBy->hi);
+    // (Caps are drawn only where a clip cuts the surface.)
+    if (s.capColorBy && !s.surface->clip().empty())
+      add(s.capColorBy->fieldName, s.capColorBy->map, s.capColorBy->lo, s.capColorBy->hi);
+  }
   for (const SliceInfo& s : world.slices()) {
     const VolumeDesc& v = scene.volumes[size_t(s.volume)];
     add(!v.name.empty() ? v.name : v.field ? "procedural field" : std::filesystem::path(v.file).filename().string(), s.map,
@@ -298,9 +302,9 @@ RenderSetup prepareRender(const RenderFlags& flags) {
     bool coloured = false;
     for (const VolumeDesc& v : r.scene.volumes) {
       coloured = coloured || !v.slices.empty();
-      for (const IsoSurfaceDesc& iso : v.isosurfaces) coloured = coloured || iso.colorBy;
+      for (const IsoSurfaceDesc& iso : v.isosurfaces) coloured = coloured || iso.colorBy || iso.capColorBy;
     }
-    if (!coloured) throw InputError("--colorbar", "", "the scene colours nothing by data (no \"color_by\" and no slice)");
+    if (!coloured) throw InputError("--colorbar", "", "the scene colours nothing by data (no \"color_by\", \"cap_color_by\" or slice)");
   }
   const RenderSettings& s = r.scene.settings;
   r.options.rayFlow = s.rayFlow;

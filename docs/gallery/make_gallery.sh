@@ -30,6 +30,7 @@ render examples/default.json --resolution 320x240 --spp 96 -o $out/default.png
 render examples/quick_look.json --resolution 320x240 --spp 16 -o $out/quick_look.png
 render examples/color_by.json --resolution 320x240 --spp 64 -o $out/color_by.png
 render examples/mri_slices.json --resolution 320x240 --spp 32 -o $out/mri_slices.png
+render examples/ct_chest_cut.json --resolution 320x240 --spp 64 --colorbar -o $out/ct_chest_cut.png
 render examples/cornell_torus.json --resolution 320x320 --spp 256 -o $out/cornell_torus.png
 render examples/mri_brain.json --resolution 320x240 --spp 64 -o $out/mri_brain.png
 render examples/smoke.json --resolution 240x320 --spp 64 -o $out/smoke.png
