@@ -126,6 +126,14 @@ class ViewSession {
     std::string label;
     double min, max;
   };
+  // A clip plane across one axis (the view's own, added to every volume's "clip" entries: meshes
+  // such as a floor stay whole): it keeps
+  // the points whose coordinate is at most `position` (`flip`: at least), within the volumes'
+  // boxes' extent [min, max] along the axis.
+  struct AxisClip {
+    bool on = false, flip = false;
+    double position = 0, min = 0, max = 0;
+  };
   struct Frame {
     uint64_t serial = 0, version = 0;
     int spp = 0;
@@ -166,6 +174,9 @@ class ViewSession {
   int m_width = 0, m_height = 0;
   std::vector<Surface> m_surfaces;
   std::vector<Slice> m_slices;
+  AxisClip m_axisClips[3];
+  bool m_axisClipsShown = false;  // the scene has volumes: the view offers them
+  std::vector<Json> m_fileClips;  // each volume's own "clip" entries in the file (arrays; they stay)
 
   std::mutex m_mutex;
   std::condition_variable m_changed, m_framed;
@@ -212,6 +223,18 @@ ViewSession::ViewSession(const std::string& path, const ViewOptions& options) : 
       }
       m_slices.push_back({int(v), int(k), name + " slice " + std::to_string(k), lo, hi});
     }
+  }
+  for (size_t v = 0; v < m_desc.volumes.size(); ++v) {
+    const Json& volume = m_doc["volumes"][v];
+    m_fileClips.push_back(volume.contains("clip") ? volume["clip"] : Json::array());
+  }
+  for (int a = 0; a < 3; ++a) {
+    AxisClip& c = m_axisClips[a];
+    c.min = INFINITY, c.max = -INFINITY;
+    for (const VolumeInfo& info : m_firstWorld->volumes())
+      for (const Vec3d& corner : gridBoxCorners(info)) c.min = std::min(c.min, corner[a]), c.max = std::max(c.max, corner[a]);
+    c.position = 0.5 * (c.min + c.max);
+    m_axisClipsShown = c.min < c.max;
   }
   const double aspect = double(m_desc.settings.width) / m_desc.settings.height;
   m_width = options.width > 0 ? options.width : 480;
@@ -273,6 +296,13 @@ std::string ViewSession::stateJson() {
     s["slices"].push_back({{"index", i}, {"label", f.label}, {"min", f.min}, {"max", f.max},
                            {"position", dot(d.point, d.normal)}, {"map", d.map.name()}});
   }
+  s["clip"] = Json::array();
+  if (m_axisClipsShown)
+    for (int a = 0; a < 3; ++a) {
+      const AxisClip& c = m_axisClips[a];
+      s["clip"].push_back({{"axis", std::string(1, "xyz"[a])}, {"on", c.on}, {"flip", c.flip}, {"position", c.position},
+                           {"min", c.min}, {"max", c.max}});
+    }
   s["error"] = m_error;
   return s.dump();
 }
@@ -287,8 +317,51 @@ void ViewSession::apply(const std::string& body) {
   bool rebuild = false;
   for (const auto& [key, value] : change.items()) {
     if (key != "surface" && key != "value" && key != "color" && key != "color_by" && key != "slice" &&
-        key != "position" && key != "integrator" && key != "camera")
-      throw InputError(where, "/" + key, "unknown key (known: surface, value, color, color_by, slice, position, integrator, camera)");
+        key != "position" && key != "integrator" && key != "camera" && key != "clip")
+      throw InputError(where, "/" + key,
+                       "unknown key (known: surface, value, color, color_by, slice, position, clip, integrator, camera)");
+  }
+  AxisClip axisClips[3] = {m_axisClips[0], m_axisClips[1], m_axisClips[2]};
+  if (change.contains("clip")) {
+    // {"axis": "x"|"y"|"z", "on": bool, "position": number, "flip": bool}: one of the view's
+    // axis planes, the keys left out as they are.
+    const Json& c = change["clip"];
+    if (!c.is_object()) throw InputError(where, "/clip", "expected an object");
+    for (const auto& [key, value] : c.items())
+      if (key != "axis" && key != "on" && key != "position" && key != "flip")
+        throw InputError(where, "/clip/" + key, "unknown key (known: axis, on, position, flip)");
+    if (!m_axisClipsShown) throw InputError(where, "/clip", "the scene has no volume to clip");
+    const std::string axis = c.contains("axis") && c["axis"].is_string() ? c["axis"].get<std::string>() : "";
+    if (axis != "x" && axis != "y" && axis != "z") throw InputError(where, "/clip/axis", "expected \"x\", \"y\" or \"z\"");
+    AxisClip& a = axisClips[axis[0] - 'x'];
+    for (const auto& [key, flag] : {std::pair<const char*, bool*>{"on", &a.on}, {"flip", &a.flip}})
+      if (c.contains(key)) {
+        if (!c[key].is_boolean()) throw InputError(where, std::string("/clip/") + key, "expected true or false");
+        *flag = c[key].get<bool>();
+      }
+    if (c.contains("position")) {
+      if (!c["position"].is_number()) throw InputError(where, "/clip/position", "expected a number");
+      const double p = c["position"].get<double>();
+      if (!(p >= a.min && p <= a.max))
+        throw InputError(where, "/clip/position", "outside the volumes' extent [" + std::to_string(a.min) + ", " +
+                                                      std::to_string(a.max) + "]");
+      a.position = p;
+    }
+    // Each volume's "clip": the file's own entries, then the view's planes that are on.
+    for (size_t v = 0; v < m_fileClips.size(); ++v) {
+      Json clip = m_fileClips[v];
+      for (int k = 0; k < 3; ++k) {
+        if (!axisClips[k].on) continue;
+        Vec3d point{0, 0, 0}, normal{0, 0, 0};
+        point[k] = axisClips[k].position;
+        normal[k] = axisClips[k].flip ? -1 : 1;
+        clip.push_back({{"plane", {{"point", vec(point)}, {"normal", vec(normal)}}}});
+      }
+      Json& volume = doc["volumes"][v];
+      if (clip.empty()) volume.erase("clip");
+      else volume["clip"] = clip;
+    }
+    rebuild = true;
   }
   if (change.contains("slice") != change.contains("position"))
     throw InputError(where, change.contains("slice") ? "/position" : "/slice", "a slice goes with a position");
@@ -393,6 +466,7 @@ void ViewSession::apply(const std::string& body) {
   }
   m_doc = std::move(doc);
   m_desc = std::move(desc);
+  for (int a = 0; a < 3; ++a) m_axisClips[a] = axisClips[a];
   m_rebuild = m_rebuild || rebuild;
   m_changedAt = Clock::now();
   ++m_version;

@@ -2,7 +2,9 @@
 // The one page of `isotrace view` (renderer/view.cpp), compiled into the binary: nothing is
 // fetched from anywhere else. Controls: one range input (class "iso") and one colour input per
 // iso-surface (for one coloured by data: a map select, class "map", and its range, class "lo" and
-// "hi", instead of the colour), one range input (class "slice") per slice plane, the integrator
+// "hi", instead of the colour), one range input (class "slice") per slice plane, a clip plane of
+// the volumes per axis (checkboxes of class "clip-on" and "clip-flip", a range input of class
+// "clip"), the integrator
 // (#integrator), Save (#save); the image (#view) takes orbit
 // (drag), pan (shift-drag or right-drag) and zoom (wheel). Frames come as server-sent events.
 
@@ -34,6 +36,7 @@ inline constexpr const char* kViewPage = R"HTML(<!doctype html>
   <label>integrator <select id="integrator"></select></label>
   <div id="surfaces"></div>
   <div id="slices"></div>
+  <div id="clips"></div>
   <div class="figures">spp <span id="spp">0</span> / <span id="target">0</span> ·
     <span id="mrays">0</span> Mrays/s · <span id="seconds">0</span> s</div>
   <div><button id="save">Save</button></div>
@@ -151,6 +154,36 @@ function showState(s) {
       slices.append(div);
     }
   }
+  const clips = $("clips");
+  if (clips.children.length !== s.clip.length) {
+    clips.textContent = "";
+    for (const c of s.clip) {
+      const div = document.createElement("div");
+      div.className = "surface";
+      const on = document.createElement("input"), flip = document.createElement("input");
+      on.type = flip.type = "checkbox";
+      on.className = "clip-on";
+      flip.className = "clip-flip";
+      on.dataset.axis = flip.dataset.axis = c.axis;
+      const label = document.createElement("label");
+      label.append(on, " clip " + c.axis + " ", flip, " flip");
+      const range = slider("clip", c.min, c.max, 1000, "clip plane across " + c.axis);
+      range.dataset.axis = c.axis;
+      const sendClip = () => send("clip" + c.axis, {clip: {axis: c.axis, on: on.checked, flip: flip.checked, position: Number(range.value)}});
+      on.addEventListener("change", sendClip);
+      flip.addEventListener("change", sendClip);
+      range.addEventListener("input", sendClip);
+      div.append(label, range);
+      clips.append(div);
+    }
+  }
+  s.clip.forEach((c, i) => {
+    const div = clips.children[i];
+    const range = div.querySelector(".clip");
+    if (document.activeElement !== range) range.value = c.position;
+    div.querySelector(".clip-on").checked = c.on;
+    div.querySelector(".clip-flip").checked = c.flip;
+  });
   s.slices.forEach((f, i) => {
     const range = slices.children[i].querySelector(".slice");
     if (document.activeElement !== range) range.value = f.position;

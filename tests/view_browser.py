@@ -5,7 +5,7 @@ through python3-selenium (Debian's python, which has selenium).
 Checks: the page loads with no console errors; the image appears; moving an iso slider changes
 the surface and the image, which refines in steps (the page's log of the frames it received
 shows every pass of the new version, in order, up to the scene's spp); the integrator switch
-works; the surface's colour map and the slice's position change the server's scene; Save writes
+works; the surface's colour map, the slice's position and a clip plane change the server's scene; Save writes
 files that `isotrace render` turns into the same picture. Nothing waits for
 a time: every wait is for an event the page shows, with a generous limit as a safety net.
 Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
@@ -129,6 +129,22 @@ def main():
         wait.until(lambda d: abs(state_at('slices[0].position') + 0.5) < 2e-3)
         wait.until(lambda d: finished(server_state()["version"]))
 
+        # A clip plane across z: on (its checkbox), then moved (its slider), then flipped; the
+        # server's scene holds the plane, and the picture changes.
+        before_clip = driver.find_element(By.ID, "view").get_attribute("src")
+        clip_on = driver.find_element(By.CSS_SELECTOR, "input.clip-on[data-axis=z]")
+        clip_on.click()
+        wait.until(lambda d: state_at('clip[2].on') is True)
+        clip = driver.find_element(By.CSS_SELECTOR, "input[type=range].clip[data-axis=z]")
+        driver.execute_script(
+            "const r = arguments[0]; r.value = 0.1; r.dispatchEvent(new Event('input', {bubbles: true}));", clip)
+        wait.until(lambda d: abs(state_at('clip[2].position') - 0.1) < 2e-3)
+        driver.find_element(By.CSS_SELECTOR, "input.clip-flip[data-axis=z]").click()
+        wait.until(lambda d: state_at('clip[2].flip') is True)
+        wait.until(lambda d: finished(server_state()["version"]))
+        if driver.find_element(By.ID, "view").get_attribute("src") == before_clip:
+            fail("the image did not change with the clip plane")
+
         if screenshot:
             Select(driver.find_element(By.ID, "integrator")).select_by_value("direct")
             wait.until(lambda d: state_at('integrator') == "direct")
@@ -152,7 +168,7 @@ def main():
         errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
         if errors:
             fail("console errors: %s" % errors)
-        print("view_browser: ok (page, refinement to %d spp, slider, integrator, colour map, slice, save)" % spp())
+        print("view_browser: ok (page, refinement to %d spp, slider, integrator, colour map, slice, clip, save)" % spp())
     finally:
         if driver:
             driver.quit()

@@ -3,6 +3,8 @@
 // render` reproduces, a dropped connection, stopping. The page itself is driven in Chromium by
 // tests/view_browser.py.
 #include <gtest/gtest.h>
+
+#include <fstream>
 #include <httplib.h>
 
 #include <algorithm>
@@ -162,6 +164,61 @@ TEST(View, ColorByAndSlicesChangeLive) {
   EXPECT_EQ(state(c)["version"], now["version"]) << "a refused change changes nothing";
   const Json frame = frameOf(view.port, now["version"], 1);
   EXPECT_FALSE(frame.is_null()) << "the changed scene renders";
+}
+
+// Clip planes across the axes: the state offers one per axis over the volumes' extent; turning
+// one on puts a plane into every volume's "clip" (after the file's own entries; meshes stay
+// whole), flipping turns its normal round, off takes it out; bad ones are 400 and change nothing.
+TEST(View, AxisClipPlanesChangeTheScene) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"camera": {"position": [0, 0, 4]}, "film": {"width": 16, "height": 12},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [16, 16, 16]}, "isosurfaces": [{"value": 0.7}],
+                 "clip": [{"box": {"min": [-2, -2, -2], "max": [2, 2, 2]}}]}]})");
+  Running view(dir + "/s.json", 16, 12);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json s = state(c);
+  ASSERT_EQ(s["clip"].size(), 3u);
+  EXPECT_EQ(s["clip"][1]["axis"], "y");
+  EXPECT_EQ(s["clip"][1]["on"], false);
+  EXPECT_DOUBLE_EQ(s["clip"][1]["min"].get<double>(), -1);  // the procedural grid spans [-1, 1]
+  EXPECT_DOUBLE_EQ(s["clip"][1]["max"].get<double>(), 1);
+  auto post = [&](const std::string& body) { return c.Post("/api/state", body, "application/json"); };
+  auto r = post(R"({"clip": {"axis": "y", "on": true, "position": 0.25}})");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  r = post(R"({"clip": {"axis": "y", "flip": true}})");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  const Json now = Json::parse(r->body);
+  EXPECT_EQ(now["clip"][1]["on"], true);
+  EXPECT_EQ(now["clip"][1]["flip"], true);
+  EXPECT_DOUBLE_EQ(now["clip"][1]["position"].get<double>(), 0.25);
+  // Save writes the file's box and the view's plane.
+  const Json frame = frameOf(view.port, now["version"], 1);
+  ASSERT_FALSE(frame.is_null()) << "the clipped scene renders";
+  auto saved = c.Post("/api/save", "", "application/json");
+  ASSERT_TRUE(saved);
+  ASSERT_EQ(saved->status, 200) << saved->body;
+  std::ifstream file(Json::parse(saved->body)["files"][0].get<std::string>());
+  const Json written = Json::parse(file);
+  const Json& clip = written["volumes"][0]["clip"];
+  ASSERT_EQ(clip.size(), 2u);
+  EXPECT_TRUE(clip[0].contains("box"));
+  EXPECT_EQ(clip[1]["plane"]["normal"], Json::array({0, -1, 0}));
+  EXPECT_EQ(clip[1]["plane"]["point"], Json::array({0, 0.25, 0}));
+  EXPECT_FALSE(written.contains("clip"));
+  r = post(R"({"clip": {"axis": "y", "on": false}})");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  const Json off = Json::parse(r->body);
+  for (const char* bad : {R"({"clip": {"axis": "w", "on": true}})", R"({"clip": {"on": true}})",
+                          R"({"clip": {"axis": "x", "position": 5}})", R"({"clip": {"axis": "x", "on": 1}})",
+                          R"({"clip": {"axis": "x", "offset": 0}})", R"({"clip": [1]})"}) {
+    auto b = post(bad);
+    ASSERT_TRUE(b);
+    EXPECT_EQ(b->status, 400) << bad << ": " << b->body;
+  }
+  EXPECT_EQ(state(c)["version"], off["version"]) << "a refused change changes nothing";
 }
 
 TEST(View, BadRequestsAre400AndChangeNothing) {
