@@ -20,35 +20,33 @@ struct MeshFlags {
   SceneOverrides overrides;
 };
 
-// `isotrace mesh`: one iso-surface as triangles in world space, with the surface's material.
-int exportMesh(const MeshFlags& flags) {
-  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
-  if (flags.output.empty()) throw InputError("-o", "", "an output file is needed (-o NAME.glb or NAME.gltf)");
-  const std::string ext = std::filesystem::path(flags.output).extension().string();
-  if (ext != ".glb" && ext != ".gltf") throw InputError(flags.output, "", "the mesh output must be .glb or .gltf");
-  if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume");
-  if (flags.volume < 0 || size_t(flags.volume) >= scene.volumes.size())
-    throw InputError("--volume", "", "no volume " + std::to_string(flags.volume) + " (the scene has " +
+}  // namespace
+
+GltfMeshOut surfaceMesh(const SceneDesc& scene, int volumeIndex, int surfaceIndex, const std::string& volumeFlag,
+                        const std::string& surfaceFlag) {
+  if (scene.volumes.empty()) throw InputError(scene.path, "/volumes", "the scene has no volume");
+  if (volumeIndex < 0 || size_t(volumeIndex) >= scene.volumes.size())
+    throw InputError(volumeFlag, "", "no volume " + std::to_string(volumeIndex) + " (the scene has " +
                                          std::to_string(scene.volumes.size()) + ", counted from 0)");
-  const VolumeDesc& desc = scene.volumes[flags.volume];
-  if (flags.surface < 0 || size_t(flags.surface) >= desc.isosurfaces.size())
-    throw InputError("--surface", "", "no iso-surface " + std::to_string(flags.surface) + " in " + desc.where +
+  const VolumeDesc& desc = scene.volumes[size_t(volumeIndex)];
+  if (surfaceIndex < 0 || size_t(surfaceIndex) >= desc.isosurfaces.size())
+    throw InputError(surfaceFlag, "", "no iso-surface " + std::to_string(surfaceIndex) + " in " + desc.where +
                                           " (it has " + std::to_string(desc.isosurfaces.size()) + ", counted from 0)");
-  const IsoSurfaceDesc& surface = desc.isosurfaces[flags.surface];
+  const IsoSurfaceDesc& surface = desc.isosurfaces[size_t(surfaceIndex)];
   const VolumeFile volume = loadVolume(desc);
   const Grid& grid = volume.grid;
   const Transform& toWorld = volume.toWorld;
   const IsoMesh mesh = extractIsoMesh(grid, surface.value);
-  const std::string where = desc.where + "/isosurfaces/" + std::to_string(flags.surface);
+  const std::string where = desc.where + "/isosurfaces/" + std::to_string(surfaceIndex);
   if (mesh.indices.empty()) {
     float lo, hi;
     grid.range(lo, hi);
-    throw InputError(flags.scene, where + "/value",
+    throw InputError(scene.path, where + "/value",
                      "iso value " + jsonNumber(surface.value) + " gives no surface (the volume's values span " +
                          jsonNumber(lo) + " to " + jsonNumber(hi) + ")");
   }
   GltfMeshOut out;
-  out.name = std::filesystem::path(flags.scene).stem().string() + where;
+  out.name = std::filesystem::path(scene.path).stem().string() + where;
   // Grid coordinates -> the volume's space -> world; normals out of the solid.
   const Vec3d origin = grid.origin(), spacing = grid.spacing();
   const double side = surface.solidAbove ? -1 : 1;
@@ -75,10 +73,22 @@ int exportMesh(const MeshFlags& flags) {
     out.color = Vec3f(*surface.color);
     out.roughness = 1;
   }
+  return out;
+}
+
+namespace {
+
+// `isotrace mesh`: one iso-surface as triangles in world space, with the surface's material.
+int exportMesh(const MeshFlags& flags) {
+  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
+  if (flags.output.empty()) throw InputError("-o", "", "an output file is needed (-o NAME.glb or NAME.gltf)");
+  const std::string ext = std::filesystem::path(flags.output).extension().string();
+  if (ext != ".glb" && ext != ".gltf") throw InputError(flags.output, "", "the mesh output must be .glb or .gltf");
+  const GltfMeshOut out = surfaceMesh(scene, flags.volume, flags.surface, "--volume", "--surface");
   saveGltfMesh(flags.output, out);
   std::printf("%s\n", flags.output.c_str());
-  std::fprintf(stderr, "isotrace: %s iso %s: %zu triangles, %zu vertices\n", where.c_str(),
-               jsonNumber(surface.value).c_str(), out.indices.size() / 3, out.positions.size());
+  std::fprintf(stderr, "isotrace: %s: %zu triangles, %zu vertices\n", out.name.c_str(), out.indices.size() / 3,
+               out.positions.size());
   return 0;
 }
 

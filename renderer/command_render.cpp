@@ -166,19 +166,19 @@ std::string rankFigures(const RankFigures* f) {
          jsonNumber(least > 0 ? most / least : 0) + ",\n";
 }
 
-void writeStats(const std::string& path, const SceneDesc& scene, double loadSeconds, double buildSeconds,
-                const RenderResult& r, int frames, int threads, double totalSeconds, int ranks,
-                const RankFigures* perRank) {
+}  // namespace
+
+std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSeconds, const RenderResult& r, int frames,
+                      int threads, double totalSeconds, int ranks, const RankFigures* perRank) {
   const RenderSettings& s = scene.settings;
   const RayCounters& c = r.counters;
   const uint64_t rays = c.camera + c.shadow + c.indirect;
   std::string overrides = "[";
   for (const std::string& o : scene.overrides) overrides += (overrides.size() > 1 ? ", " : "") + jsonString(o);
   overrides += "]";
-  const std::string temp = temporaryBeside(path);
-  FILE* f = std::fopen(temp.c_str(), "w");
-  if (!f) throw InputError(path, "", "cannot write statistics");
-  std::fprintf(f,
+  const std::string ranksText = rankFigures(perRank);
+  std::vector<char> text(4096 + scene.path.size() + overrides.size() + ranksText.size() + s.integrator.size());
+  std::snprintf(text.data(), text.size(),
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n  \"ray_flow\": %s,\n"
@@ -192,18 +192,22 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
-               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, rankFigures(perRank).c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, ranksText.c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined,
                (unsigned long long)c.traversal.packetQueries, (unsigned long long)c.traversal.packetLanes,
                (unsigned long long)c.traversal.lockstepSteps, (unsigned long long)c.traversal.solveSteps,
                (unsigned long long)c.traversal.solveLanes);
-  const bool ok = std::fclose(f) == 0;
-  if (!ok || std::rename(temp.c_str(), path.c_str()) != 0) {
-    std::remove(temp.c_str());
-    throw InputError(path, "", "cannot write statistics");
-  }
+  return text.data();
+}
+
+namespace {
+
+void writeStats(const std::string& path, const SceneDesc& scene, double loadSeconds, double buildSeconds,
+                const RenderResult& r, int frames, int threads, double totalSeconds, int ranks,
+                const RankFigures* perRank) {
+  writeJsonFile(path, statsJson(scene, loadSeconds, buildSeconds, r, frames, threads, totalSeconds, ranks, perRank));
 }
 
 // A frame sequence (--frames, --iso-sweep, --orbit): frame f of N has iso-surface `surface`

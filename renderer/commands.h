@@ -13,6 +13,10 @@ class App;
 
 namespace iso {
 
+struct GltfMeshOut;
+struct RenderResult;
+struct RankFigures;
+
 // A command added to the command line: its subcommand, and what runs it once parsed.
 struct Command {
   CLI::App* app = nullptr;
@@ -45,6 +49,18 @@ void writeJsonFile(const std::string& path, const std::string& text);
 // The shortest decimal that reads back as the same double (0.28, not 0.28000000000000003).
 std::string jsonNumber(double v);
 std::string jsonString(const std::string& s);
+
+// Iso-surface `surfaceIndex` of volume `volumeIndex` as triangles in world space (OpenVDB's
+// volumeToMesh), normals out of the solid, with the surface's material colour: `isotrace mesh`
+// and the Python module's isotrace.mesh(). An index out of range is an InputError naming
+// `volumeFlag` / `surfaceFlag`; so is an iso value that gives no surface.
+GltfMeshOut surfaceMesh(const SceneDesc& scene, int volumeIndex, int surfaceIndex, const std::string& volumeFlag,
+                        const std::string& surfaceFlag);
+
+// What `render --stats FILE` writes (JSON text): the scene's settings, samples, seconds, rays and
+// traversal counters of a render; `perRank` (MPI) may be null. The Python module's frame.stats.
+std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSeconds, const RenderResult& r, int frames,
+                      int threads, double totalSeconds, int ranks, const RankFigures* perRank);
 
 // The flags of the exactness commands (`watertight`, `bench`).
 struct CheckFlags {

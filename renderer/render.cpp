@@ -258,6 +258,7 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
     PixelSums* first = &sums[size_t(r.y0) * w + r.x0];
     tiles.renderPass(tile, s0, s1, first, size_t(w), counters.local());
     done += uint64_t(r.pixels()) * (s1 - s0);
+    if (options.workDone) *options.workDone += uint64_t(r.pixels()) * (s1 - s0);
     if (options.progress) {
       std::unique_lock<std::mutex> lock(printing, std::try_to_lock);
       if (lock) progress(false);
@@ -286,7 +287,10 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
           continue;
         }
         p.converged = tiles.converges(p);
-        if (p.converged) done += uint64_t(options.spp - p.samples);  // the progress bar's work
+        if (p.converged) {  // the progress bar's work
+          done += uint64_t(options.spp - p.samples);
+          if (options.workDone) *options.workDone += uint64_t(options.spp - p.samples);
+        }
         open = open || !p.converged;
       }
       if (!open) break;

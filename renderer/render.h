@@ -5,6 +5,7 @@
 // bit-identical for any thread count. A stop request (SIGINT, SIGTERM) ends the frame at the
 // next tile boundary once the first pass is done; the image then averages the samples each
 // pixel has (at least one).
+#include <atomic>
 #include <cstdint>
 #include <csignal>
 #include <string>
@@ -24,6 +25,10 @@ struct RenderOptions {
   uint64_t seed = 0;
   int threads = 0;  // 0: all cores
   bool progress = false;  // a progress bar on stderr
+  // If set, renderFrame adds the pixel samples it has done to it as it goes (out of width x
+  // height x spp; pixels that adaptive sampling stops count as done): the Python module's
+  // progress callback reads it from another thread.
+  std::atomic<uint64_t>* workDone = nullptr;
   // Extra layers: any of "albedo", "normal", "depth", "variance" (of the pixel mean),
   // "samples" (how many each pixel took).
   std::vector<std::string> aovs;

@@ -10,6 +10,7 @@
 #include "scene/colormap.h"
 
 #include "volume/clip.h"
+#include "volume/grid.h"
 #include "volume/transform.h"
 
 #include "volume/intersectors.h"
@@ -121,6 +122,9 @@ struct VolumeDesc {
   std::vector<IsoSurfaceDesc> isosurfaces;  // none: a data field that colours others, not drawn
   std::vector<SliceDesc> slices;
   ClipRegion clip;  // "clip" (world space): its iso-surfaces are cut open and capped
+  // "array": K, a grid handed to the parser (SceneArrays: the Python module's numpy volumes,
+  // used in place); its samples, origin and spacing. Null for a file or a procedural field.
+  std::shared_ptr<const Grid> array;
 };
 
 struct RenderSettings {
@@ -177,8 +181,12 @@ void checkJsonNesting(const std::string& text, const std::string& file, int limi
 
 // Reads and validates a scene file, with the command line's overrides applied. Any problem is an
 // InputError naming the JSON path (or the flag, for an override that cannot be applied).
+// Grids held in memory that volumes name by index ({"array": K}): the Python module's volumes.
+// A scene file has none to name.
+using SceneArrays = std::vector<std::shared_ptr<const Grid>>;
 SceneDesc parseSceneFile(const std::string& path, const SceneOverrides& overrides = {});
-SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides = {});
+SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides = {},
+                         const SceneArrays* arrays = nullptr);
 // The scene's JSON text with the overrides applied (for `isotrace view`, which edits the JSON);
 // refuses what parseSceneText refuses about them.
 std::string overriddenSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides);

@@ -632,7 +632,7 @@ SliceDesc parseSlice(ObjectReader r) {
   return s;
 }
 
-SceneDesc parseSceneJson(const Json& root, const std::string& path) {
+SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneArrays* arrays) {
   const fs::path dir = fs::path(path).parent_path();
   SceneDesc scene;
   scene.path = path;
@@ -713,13 +713,24 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
     for (size_t i = 0; i < j->size(); ++i) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
-                      {"file", "procedural", "dims", "type", "endian", "series", "grid", "origin", "spacing", "transform",
-                       "name", "isosurfaces", "slices", "clip"});
+                      {"file", "procedural", "array", "dims", "type", "endian", "series", "grid", "origin", "spacing",
+                       "transform", "name", "isosurfaces", "slices", "clip"});
       VolumeDesc v;
       v.where = vp;
-      const bool hasFile = vr.has("file"), hasProc = vr.has("procedural");
-      if (hasFile == hasProc) vr.fail(vp, "a volume needs exactly one of \"file\" and \"procedural\"");
-      if (hasFile) {
+      const bool hasFile = vr.has("file"), hasProc = vr.has("procedural"), hasArray = vr.has("array");
+      if (int(hasFile) + int(hasProc) + int(hasArray) != 1)
+        vr.fail(vp, "a volume needs exactly one of \"file\" and \"procedural\" (or, from Python, \"array\")");
+      if (hasArray) {
+        // An in-memory grid (isotrace.Volume in Python): its index among the arrays handed over.
+        const size_t count = arrays ? arrays->size() : 0;
+        if (count == 0)
+          vr.fail(vr.at("array"), "no arrays here: \"array\" names a volume given from Python (isotrace.Volume)");
+        const int k = vr.integer("array", 0, 0, int(std::min<size_t>(count, 1u << 30)) - 1);
+        v.array = (*arrays)[size_t(k)];
+        if (!v.array) vr.fail(vr.at("array"), "array " + std::to_string(k) + " is empty");
+        for (const char* key : {"dims", "type", "endian", "series", "grid"})
+          if (vr.has(key)) vr.fail(vr.at(key), std::string("\"") + key + "\" applies to volume files, not to an array");
+      } else if (hasFile) {
         const std::string file = vr.string("file", "");
         if (file.empty()) vr.fail(vr.at("file"), "empty file name");
         v.file = fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
@@ -844,11 +855,12 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path) {
 
 }  // namespace
 
-SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides) {
+SceneDesc parseSceneText(const std::string& text, const std::string& path, const SceneOverrides& overrides,
+                         const SceneArrays* arrays) {
   Json root = parseJsonText(text, path);
   std::vector<std::string> applied;
   applyOverrides(root, overrides, applied);
-  SceneDesc scene = parseSceneJson(root, path);
+  SceneDesc scene = parseSceneJson(root, path, arrays);
   scene.overrides = std::move(applied);
   return scene;
 }

@@ -58,7 +58,10 @@ void worldTriangles(const TriangleMesh& m, const Transform& t, bool identity, st
 
 VolumeFile loadVolume(const VolumeDesc& desc) {
   VolumeFile v;
-  if (desc.field) {
+  if (desc.array) {
+    v.grid = *desc.array;  // the samples are shared, not copied
+    v.format = "array";
+  } else if (desc.field) {
     v.grid = makeProceduralGrid(*desc.field, desc.resolution);
     v.format = "procedural";
   } else {
@@ -433,7 +436,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     if (shared) {
       info = sameVolumes->m_volumes[v];  // the grid and brick ranges are shared, not copied
     } else {
-      info.name = desc.field ? "procedural" : desc.file;
+      info.name = desc.array ? "array" : desc.field ? "procedural" : desc.file;
       VolumeFile file = loadVolume(desc);
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;

@@ -10,6 +10,12 @@
 # `isotrace view`, whose page the tests drive in Debian's chromium with chromium-driver and
 # python3-selenium (no browser is downloaded); stress-ng loads the machine for
 # scripts/soak_tests.sh --loaded; fonts-dejavu-core is the font of `render --colorbar`'s legend.
+# The Python module (python/) builds with pybind11-dev against python3-dev and python3-numpy;
+# its tests run under python3-pytest, and its notebook under python3-nbconvert and
+# python3-ipykernel. After the build, a .pth file in Debian's python3 site folder
+# (/usr/local/lib/python3.X/dist-packages/isotrace.pth) names build/python of this checkout, so
+# `import isotrace` works in /usr/bin/python3 from anywhere (the last checkout set up wins;
+# delete that file to undo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -20,7 +26,8 @@ packages=(build-essential cmake pkg-config
           libopenvdb-dev libboost-iostreams-dev
           libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
           libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium
-          stress-ng fonts-dejavu-core)
+          stress-ng fonts-dejavu-core
+          pybind11-dev python3-dev python3-numpy python3-pytest python3-nbconvert python3-ipykernel)
 
 missing=()
 for p in "${packages[@]}"; do
@@ -39,4 +46,12 @@ if [ "${ISOTRACE_SKIP_BUILD:-0}" != "1" ]; then
   cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
   cmake --build build -j2 -- --no-print-directory 2>&1 | grep -Ev '^\[ *[0-9]+%\]|^Consolidate|^Scanning' || true
   test -x build/isotrace
+  # `import isotrace` in Debian's python3 from anywhere: a .pth naming this build's module folder.
+  site=$(/usr/bin/python3 -c 'import sys; print("/usr/local/lib/python%d.%d/dist-packages" % sys.version_info[:2])')
+  if [ -d build/python/isotrace ]; then
+    sudo_cmd=""
+    [ "$(id -u)" -ne 0 ] && sudo_cmd="sudo"
+    $sudo_cmd mkdir -p "$site"
+    echo "$PWD/build/python" | $sudo_cmd tee "$site/isotrace.pth" >/dev/null
+  fi
 fi
