@@ -69,25 +69,29 @@ ArrayGrid gridFromArray(py::array array, std::array<double, 3> spacing, std::arr
   const py::dtype dt = array.dtype();
   ArrayGrid out;
   ScalarType type;
-  if (dt.is(py::dtype::of<uint8_t>())) type = ScalarType::UInt8, out.dtype = "uint8";
-  else if (dt.is(py::dtype::of<uint16_t>())) type = ScalarType::UInt16, out.dtype = "uint16";
-  else if (dt.is(py::dtype::of<int16_t>())) type = ScalarType::Int16, out.dtype = "int16";
-  else if (dt.is(py::dtype::of<float>())) type = ScalarType::Float32, out.dtype = "float32";
-  else if (dt.is(py::dtype::of<double>())) type = ScalarType::Float32, out.dtype = "float32", out.copied = true;
+  const char kind = dt.kind();
+  const py::ssize_t size = dt.itemsize();
+  const bool nativeOrder = dt.byteorder() != '>';  // '=' native, '<' little (this machine), '|' bytes
+  if (kind == 'u' && size == 1) type = ScalarType::UInt8, out.dtype = "uint8";
+  else if (kind == 'u' && size == 2) type = ScalarType::UInt16, out.dtype = "uint16";
+  else if (kind == 'i' && size == 2) type = ScalarType::Int16, out.dtype = "int16";
+  else if (kind == 'f' && size == 4) type = ScalarType::Float32, out.dtype = "float32";
+  else if (kind == 'f' && size == 8) type = ScalarType::Float32, out.dtype = "float32", out.copied = true;
   else
     throw InputError(where, "array", "unsupported dtype " + dt.attr("name").cast<std::string>() +
                                          " (uint8, uint16, int16, float32; float64 is held as float32)");
+  if (!nativeOrder) out.copied = true;  // big-endian samples: converted to this machine's order
   // x fastest in memory: C order for (nz, ny, nx), Fortran order for (nx, ny, nz).
   const bool zyx = axes == "zyx";
   const int flag = zyx ? py::array::c_style : py::array::f_style;
-  const bool inPlace = !out.copied && (array.flags() & (zyx ? py::array::c_style : py::array::f_style)) != 0;
+  const bool inPlace = !out.copied && (array.flags() & flag) != 0;
   py::array held = array;
   if (!inPlace) {
     out.copied = true;
     const py::module_ np = py::module_::import("numpy");
-    held = np.attr(zyx ? "ascontiguousarray" : "asfortranarray")(array, py::arg("dtype") = type == ScalarType::Float32 && dt.is(py::dtype::of<double>()) ? py::dtype::of<float>() : dt);
+    static const char* names[] = {"uint8", "uint16", "int16", "float32"};
+    held = np.attr(zyx ? "ascontiguousarray" : "asfortranarray")(array, py::arg("dtype") = names[int(type)]);
   }
-  (void)flag;
   Vec3i dims;
   for (int a = 0; a < 3; ++a) {
     const py::ssize_t n = held.shape(zyx ? 2 - a : a);
