@@ -10,7 +10,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <condition_variable>
 #include <deque>
+#include <mutex>
 #include <limits>
 #include <thread>
 
@@ -64,6 +66,13 @@ class PieceWorkers {
   ~PieceWorkers() { join(); }
   void push(Piece piece) { m_todo.push(std::move(piece)); }
   bool pop(Piece& piece) { return m_done.try_pop(piece); }
+  // Sleeps until a piece is done or `timeout` has passed (the main thread's wait between
+  // looks at MPI: it must not take the core a render thread needs).
+  void waitForDone(std::chrono::microseconds timeout) {
+    std::unique_lock<std::mutex> lock(m_mutex);
+    m_doneChanged.wait_for(lock, timeout, [&] { return m_doneCount != m_seenCount; });
+    m_seenCount = m_doneCount;
+  }
   // Ends the threads once the pieces pushed so far are done; the counters of all of them.
   RayCounters join() {
     for (size_t i = 0; i < m_threads.size(); ++i) m_todo.push(Piece{});
@@ -85,6 +94,11 @@ class PieceWorkers {
       h.open = m_tiles.renderPasses(h.tile, h.pass, h.s0, kPieceSamples, piece.sums.data(), counters);
       h.busySeconds = since(start);
       m_done.push(std::move(piece));
+      {
+        std::lock_guard<std::mutex> lock(m_mutex);
+        ++m_doneCount;
+      }
+      m_doneChanged.notify_one();
     }
   }
 
@@ -93,6 +107,9 @@ class PieceWorkers {
   std::vector<std::thread> m_threads;
   tbb::concurrent_bounded_queue<Piece> m_todo;
   tbb::concurrent_queue<Piece> m_done;
+  std::mutex m_mutex;
+  std::condition_variable m_doneChanged;
+  uint64_t m_doneCount = 0, m_seenCount = 0;
 };
 
 // A piece as bytes (header, then the sums) and back; false if the bytes are no piece of this frame.
@@ -162,8 +179,28 @@ std::vector<char> receive(const MPI_Status& status) {
   return buffer;
 }
 
-// The main thread waits between polls without spinning: the cores belong to the renderers.
-void idle() { usleep(100); }
+// The main thread's wait between looks at MPI when there was nothing to do: asleep until a
+// render thread finishes a piece, or for a time that doubles from 50 us to 2 ms while nothing
+// happens (back to 50 us once something does). mpirun binds each rank to one core, which the
+// main thread shares with the rank's render thread: a fixed 100 us poll woke it 10,000 times a
+// second, each an MPI progress call and two context switches on that core, and the render ran
+// ~55% slower than in one process (docs/BENCHMARKS.md, "The image-parallel slowdown"). Pieces
+// take milliseconds and every rank holds two more than it renders, so a 2 ms answer is not waited for.
+class Idle {
+ public:
+  void wait(PieceWorkers& workers, bool busy) {
+    if (busy) {
+      m_wait = kShortest;
+      return;
+    }
+    workers.waitForDone(m_wait);
+    m_wait = std::min(m_wait * 2, kLongest);
+  }
+
+ private:
+  static constexpr std::chrono::microseconds kShortest{50}, kLongest{2000};
+  std::chrono::microseconds m_wait = kShortest;
+};
 
 void sendCounters(const RayCounters& mine, RayCounters& total, int root) {
   constexpr int n = 3 + TraversalStats::kFields;
@@ -313,6 +350,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
       }
     };
     std::deque<int> waiting;  // ranks that asked for a piece and have no answer yet
+    Idle idle;
     Outbox outbox;
     std::vector<char> bytes;
     double lastPrint = -1, stoppedAt = -1;
@@ -382,7 +420,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
         job.abandon();
         break;
       }
-      if (!busy) idle();
+      idle.wait(workers, busy);
     }
     if (printed) std::fprintf(stderr, "\n");
     if (doneRanks == size - 1) outbox.drain();
@@ -401,6 +439,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
   // Every other rank: keeps up to `inFlight` pieces asked for or in hand, returns each.
   int asked = 0, held = 0;
   bool noMore = false;
+  Idle idle;
   Outbox outbox;
   std::vector<char> bytes;
   for (;;) {
@@ -433,7 +472,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     }
     outbox.progress();
     if (held == 0 && asked == 0 && (noMore || stop)) break;
-    if (!busy) idle();
+    idle.wait(workers, busy);
   }
   outbox.send({}, 0, kDone);
   outbox.drain();
