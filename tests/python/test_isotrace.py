@@ -171,6 +171,19 @@ def test_watertight_bench_and_mesh_reports():
     assert {r["intersector"] for r in bench["results"]} == {"isolation:8", "linear"}
     vertices, triangles, normals = isotrace.mesh(scene)
     assert vertices.shape == normals.shape and triangles.max() < len(vertices)
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5)
+
+
+def test_mesh_saves_gltf_that_the_command_line_reads(tmp_path):
+    scene = isotrace.Scene()
+    scene.add_volume(isotrace.Volume(blobs((24, 24, 24))), isosurfaces=[{"value": 0.5, "color": [0.2, 0.6, 0.3]}])
+    vertices, triangles, _ = isotrace.mesh(scene, path=tmp_path / "blobs.glb")
+    (tmp_path / "m.json").write_text(json.dumps({"meshes": [{"file": str(tmp_path / "blobs.glb")}]}))
+    info = subprocess.run([BINARY, "info", str(tmp_path / "m.json")], capture_output=True, text=True)
+    assert info.returncode == 0, info.stderr
+    assert "%d triangles" % len(triangles) in info.stdout, info.stdout
+    with pytest.raises(isotrace.InputError, match="must be .glb or .gltf"):
+        isotrace.mesh(scene, path=tmp_path / "blobs.obj")
 
 
 def test_progress_is_reported_up_to_the_whole_frame():
