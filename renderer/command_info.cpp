@@ -8,6 +8,7 @@
 #include "renderer/commands.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
+#include "volume/partition.h"
 
 namespace iso {
 namespace {
@@ -35,7 +36,55 @@ const char* lightKindName(Light::Kind k) {
   return "?";
 }
 
-int info(const std::string& path, const SceneOverrides& overrides) {
+// --ranks N: how a data-parallel render would split each volume (volume/partition.h): each
+// rank's box of whole bricks, balanced by the bricks active for the volume's iso-surfaces, and
+// what the rank would hold of it.
+void printPartition(const World& world, const std::string& path, int ranks) {
+  std::printf("  data-parallel over %d ranks: each would load only its box of each volume (meshes, lights and the "
+              "camera on every rank)\n", ranks);
+  for (size_t v = 0; v < world.volumes().size(); ++v) {
+    const VolumeInfo& vi = world.volumes()[v];
+    const Grid& g = *vi.grid;
+    const BrickGrid& bricks = *vi.bricks;
+    std::vector<double> weights(bricks.size(), 0.0);
+    for (const SurfaceInfo& si : world.surfaces())
+      if (si.volume == int(v))
+        for (uint32_t b : si.surface->activeBricks()) weights[b] = 1;
+    const std::vector<RankBox> boxes = partitionBricks(bricks, weights, ranks, path + ": volume " + std::to_string(v));
+    const double whole = double(g.bytes() + bricks.bytes());
+    double largest = 0;
+    for (size_t r = 0; r < boxes.size(); ++r) {
+      const RankBox& box = boxes[r];
+      // What the rank holds: its samples (a sparse grid: its bricks' stored blocks) and brick ranges.
+      double bytes = double(box.bricks) * 2 * sizeof(float);
+      if (const SparseSamples* sparse = g.sparse()) {
+        for (int z = box.brickLo.z; z < box.brickHi.z; ++z)
+          for (int y = box.brickLo.y; y < box.brickHi.y; ++y)
+            for (int x = box.brickLo.x; x < box.brickHi.x; ++x)
+              bytes += sparse->slotOf(x, y, z) >= 0 ? double(SparseSamples::kBlockSize) * 4 + 4 : 8;
+      } else {
+        bytes += double(box.samples()) * double(scalarTypeSize(g.type()));
+      }
+      largest = std::max(largest, bytes);
+      Vec3d lo{INFINITY, INFINITY, INFINITY}, hi = -lo;
+      for (int c = 0; c < 8; ++c) {
+        const Vec3d cell{double(c & 1 ? box.cellHi.x : box.cellLo.x), double(c & 2 ? box.cellHi.y : box.cellLo.y),
+                         double(c & 4 ? box.cellHi.z : box.cellLo.z)};
+        const Vec3d w = vi.transform.point(g.origin() + cell * g.spacing());
+        lo = min(lo, w);
+        hi = max(hi, w);
+      }
+      std::printf("    volume %zu, rank %zu: cells [%d, %d) x [%d, %d) x [%d, %d), world (%g, %g, %g) to (%g, %g, %g); "
+                  "%.2f MiB, %.0f of %zu bricks active\n",
+                  v, r, box.cellLo.x, box.cellHi.x, box.cellLo.y, box.cellHi.y, box.cellLo.z, box.cellHi.z, lo.x, lo.y,
+                  lo.z, hi.x, hi.y, hi.z, bytes / 1048576.0, box.weight, box.bricks);
+    }
+    std::printf("    volume %zu: the largest rank holds %.2f MiB, %.0f%% of the whole volume's %.2f MiB\n", v,
+                largest / 1048576.0, 100 * largest / std::max(whole, 1.0), whole / 1048576.0);
+  }
+}
+
+int info(const std::string& path, const SceneOverrides& overrides, int ranks) {
   const SceneDesc scene = parseSceneFile(path, overrides);
   World world(scene, scene.settings.intersector);
   for (const std::string& w : world.warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
@@ -132,6 +181,7 @@ int info(const std::string& path, const SceneOverrides& overrides) {
     std::printf("    %d %s%s\n", count, kind.c_str(),
                 kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
   if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
+  if (ranks > 0) printPartition(world, path, ranks);
   for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
   std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
   return 0;
@@ -143,12 +193,17 @@ Command addInfoCommand(CLI::App& app) {
   struct Flags {
     std::string scene;
     SceneOverrides overrides;
+    int ranks = 0;
   };
   auto flags = std::make_shared<Flags>();
   CLI::App* cmd = app.add_subcommand("info", "what the scene holds and what will be built");
   cmd->add_option("scene", flags->scene, "scene file (JSON)")->required();
   addSceneOverrides(cmd, flags->overrides);
-  return {cmd, [flags] { return info(flags->scene, flags->overrides); }};
+  cmd->add_option("--ranks", flags->ranks,
+                  "also show how a data-parallel render over N ranks would split each volume (boxes of whole bricks, "
+                  "balanced by active bricks) and what each rank would hold")
+      ->check(CLI::Range(1, 65536));
+  return {cmd, [flags] { return info(flags->scene, flags->overrides, flags->ranks); }};
 }
 
 }  // namespace iso

@@ -1,0 +1,90 @@
+// The split of a volume over data-parallel ranks (volume/partition.h, `isotrace info --ranks N`):
+// boxes of whole bricks that cover every brick once, share the sample layer at each seam, and
+// balance the active bricks; too many ranks is refused in one line.
+#include <gtest/gtest.h>
+
+#include <set>
+
+#include "volume/bricks.h"
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+#include "volume/partition.h"
+#include "tests/test_util.h"
+
+namespace iso {
+namespace {
+
+TEST(Partition, BoxesCoverEveryBrickOnceAndBalanceTheActiveOnes) {
+  const Grid grid = readVolumeFile(test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw"), {}, {}).grid;
+  const BrickGrid bricks(grid);
+  std::vector<double> weights(bricks.size(), 0.0);
+  double active = 0;
+  for (uint32_t b : bricks.activeBricks(20.f)) weights[b] = 1, active += 1;
+  ASSERT_GT(active, 100);
+  for (int ranks = 1; ranks <= 7; ++ranks) {
+    SCOPED_TRACE("ranks " + std::to_string(ranks));
+    const std::vector<RankBox> boxes = partitionBricks(bricks, weights, ranks, "hydrogen");
+    ASSERT_EQ(boxes.size(), size_t(ranks));
+    std::vector<int> owner(bricks.size(), -1);
+    double most = 0;
+    for (size_t r = 0; r < boxes.size(); ++r) {
+      const RankBox& box = boxes[r];
+      for (int z = box.brickLo.z; z < box.brickHi.z; ++z)
+        for (int y = box.brickLo.y; y < box.brickHi.y; ++y)
+          for (int x = box.brickLo.x; x < box.brickHi.x; ++x) {
+            const Vec3i n = bricks.count();
+            const size_t b = (size_t(z) * n.y + y) * n.x + x;
+            EXPECT_EQ(owner[b], -1) << "brick " << b << " in two boxes";
+            owner[b] = int(r);
+          }
+      // Cells of whole bricks; the samples run one past the last cell (the seam layer).
+      EXPECT_EQ(box.cellLo.x % BrickGrid::kCells, 0);
+      EXPECT_EQ(box.samples(), size_t(box.cellHi.x - box.cellLo.x + 1) * size_t(box.cellHi.y - box.cellLo.y + 1) *
+                                   size_t(box.cellHi.z - box.cellLo.z + 1));
+      most = std::max(most, box.weight);
+    }
+    for (int o : owner) EXPECT_GE(o, 0) << "a brick in no box";
+    // Balanced to within the slab the cut cannot divide (a slab of this grid holds at most
+    // 16 x 16 = 256 bricks; the active ones are a sphere's shell): here within 35% of the mean.
+    EXPECT_LE(most, 1.35 * active / ranks + 1);
+  }
+  // Neighbouring boxes share the seam's samples: a box's last cell + 1 is the next one's first.
+  const std::vector<RankBox> two = partitionBricks(bricks, weights, 2, "hydrogen");
+  int touching = 0;
+  for (int a = 0; a < 3; ++a) touching += two[0].cellHi[a] == two[1].cellLo[a];
+  EXPECT_EQ(touching, 1);
+}
+
+TEST(Partition, MoreRanksThanBricksIsRefused) {
+  const Grid grid = readVolumeFile(test::dataPath("volumes/bucky_32x32x32_uint8.raw"), {}, {}).grid;  // 4^3 bricks
+  const BrickGrid bricks(grid);
+  const std::vector<double> none(bricks.size(), 0.0);
+  EXPECT_EQ(partitionBricks(bricks, none, 64, "bucky").size(), 64u);
+  try {
+    partitionBricks(bricks, none, 65, "bucky");
+    ADD_FAILURE();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("bucky"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("too few"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Partition, InfoShowsEachRanksBox) {
+  const std::string scene = std::string(ISOTRACE_SOURCE_DIR) + "/examples/quick_look.json";
+  const auto r = test::runIsotrace("info " + scene + " --ranks 3");
+  ASSERT_EQ(r.status, 0) << r.err;
+  for (const char* rank : {"volume 0, rank 0:", "volume 0, rank 1:", "volume 0, rank 2:"})
+    EXPECT_NE(r.out.find(rank), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("the largest rank holds"), std::string::npos) << r.out;
+  for (const char* bad : {"--ranks 0", "--ranks x", "--ranks 100000"}) {
+    const auto b = test::runIsotrace("info " + scene + " " + bad);
+    EXPECT_EQ(b.status, 2) << bad;
+    EXPECT_EQ(std::count(b.err.begin(), b.err.end(), '\n'), 1) << bad << ": " << b.err;
+  }
+  const auto many = test::runIsotrace("info " + scene + " --ranks 600");  // neghip: 512 bricks
+  EXPECT_EQ(many.status, 2) << many.out;
+  EXPECT_NE(many.err.find("too few"), std::string::npos) << many.err;
+}
+
+}  // namespace
+}  // namespace iso

@@ -1,0 +1,31 @@
+#pragma once
+// A volume split over the ranks of a data-parallel render (issue 30; `isotrace info --ranks N`
+// shows it before anyone runs one): boxes of whole bricks, cut k-d along the box's longest axis
+// (in bricks) so that each side holds active bricks in proportion to its ranks. A box of cells
+// [cellLo, cellHi) needs the samples [cellLo, cellHi] on every axis: neighbouring boxes share the
+// layer of samples at their seam, as neighbouring bricks do.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "volume/bricks.h"
+
+namespace iso {
+
+struct RankBox {
+  Vec3i brickLo, brickHi;  // bricks [brickLo, brickHi) on each axis
+  Vec3i cellLo, cellHi;    // cells [cellLo, cellHi)
+  size_t bricks = 0;       // bricks in the box
+  double weight = 0;       // of the weights given (active bricks)
+  size_t samples() const {
+    return size_t(cellHi.x - cellLo.x + 1) * size_t(cellHi.y - cellLo.y + 1) * size_t(cellHi.z - cellLo.z + 1);
+  }
+};
+
+// `weights`: one per brick of `bricks` (e.g. 1 for a brick active for some iso-surface); all 0:
+// the boxes are balanced by brick count. `ranks` boxes, every brick in exactly one; an
+// InputError (naming `where`) if the volume has fewer bricks than ranks along the cuts.
+std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<double>& weights, int ranks,
+                                     const std::string& where);
+
+}  // namespace iso
