@@ -19,6 +19,7 @@ struct Ray {
   // instead of evaluating the field there (StartClass, volume/traversal.h).
   int fromSurface = -1;
   bool fromInside = false;
+  bool fromCap = false;  // it leaves a cap of that surface (its origin is on the clip region's boundary)
 };
 
 class Camera {

@@ -495,6 +495,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       }
       s.surface = std::make_unique<IsoSurface>(*vol.grid, *vol.bricks, isoDesc.value, intersector, objectClip,
                                                isoDesc.solidAbove);
+      s.surface->setOrder(int(m_surfaces.size()));
       if (!s.surface->clip().empty() && s.material >= 0 && m_materials[size_t(s.material)].emits())
         throw InputError(scene.path, desc.where + "/isosurfaces/" + std::to_string(k),
                          "an emissive iso-surface cannot be clipped (its light would be sampled where it is cut away)");
@@ -663,6 +664,10 @@ void startFromSurface(const Ray& ray, const std::vector<SurfaceInfo>& surfaces, 
   if (ray.fromSurface < 0) return;
   lane.startSurface = surfaces[ray.fromSurface].surface.get();
   lane.start = startClassOf(ray);
+  if (ray.fromCap) {
+    lane.gridRay.capClip = &lane.startSurface->clip();
+    lane.gridRay.capOrder = lane.startSurface->order();
+  }
 }
 
 // Lane i of an Embree packet of width N as a single ray and hit (Embree's rtcGetRayHitFromRayHitN,
@@ -1194,6 +1199,7 @@ Ray leaving(const Hit& hit, const Vec3f& w) {
   if (hit.surface >= 0) {
     r.org64 = o;
     r.fromSurface = hit.surface;
+    r.fromCap = hit.cap;
     r.fromInside = goesThrough(hit, w) ? hit.insideAfter : !hit.insideAfter;
   }
   return r;

@@ -291,6 +291,62 @@ TEST(ClippedSurface, CapsAreColouredByTheFieldOnThePlane) {
   EXPECT_GT(caps, 10);
 }
 
+// Two solids cut by one plane (an outer ball of radius 0.5 and an inner one of 0.3, both of the
+// sphere field, "inside": "below"): a ray into the cut meets both caps at the same point, in the
+// scene's order whichever comes first in the file, each once; with the outer one a thin sheet,
+// what a ray sees through it on the cut is the inner one's cap, not the inner solid's far side.
+TEST(ClippedSurface, CapsOfNestedSolidsOnOnePlaneAreEachMetOnce) {
+  for (const bool innerFirst : {false, true}) {
+    for (const bool bothThin : {false, true}) {
+      SCOPED_TRACE(std::string(innerFirst ? "inner first" : "outer first") + (bothThin ? ", both thin" : ""));
+      const std::string outer = R"({"value": 0.5, "inside": "below", "material": "glass"})";
+      const std::string inner = std::string(R"({"value": 0.3, "inside": "below", "material": ")") +
+                                (bothThin ? "glass" : "core") + R"("})";
+      const SceneDesc scene = parseSceneText(
+          R"({"materials": {"glass": {"type": "dielectric", "thin": true}, "core": {"type": "diffuse"}},
+              "volumes": [{"procedural": {"field": "sphere", "resolution": [48, 48, 48]},
+                           "isosurfaces": [)" + (innerFirst ? inner + ", " + outer : outer + ", " + inner) + R"(],
+                           "clip": [{"plane": {"point": [0, 0, 0], "normal": [0, 0.3, 1]}}]}]})",
+          "nested.json");
+      const World world(scene, IntersectorSpec{});
+      const int innerIndex = innerFirst ? 0 : 1;
+      TraversalStats stats;
+      int checked = 0;
+      for (int i = 0; i < 25; ++i) {
+        Ray ray;
+        ray.org = {-0.12f + 0.01f * float(i), 0.03f, 3};
+        ray.dir = {0, 0, -1};
+        if (!bothThin) {
+          Hit hit;
+          Vec3f T;
+          ASSERT_TRUE(world.intersectPastThin(ray, hit, T, stats));
+          EXPECT_EQ(hit.surface, innerIndex);
+          EXPECT_TRUE(hit.cap);
+          // On the plane, or (met by the ray that went through the outer cap) at that ray's
+          // start, a spawn offset (the float traversal's rounding, ~5e-7 here) off it.
+          EXPECT_NEAR(hit.position64.z + 0.3 * hit.position64.y, 0, 2e-6);
+          ++checked;
+          continue;
+        }
+        // Both thin: the chain through the cut meets the two caps once each, then leaves the
+        // inner solid and the outer one through their surfaces: 4 hits, no cap met twice.
+        std::vector<Hit> hits;
+        Hit hit;
+        for (Ray r = ray; hits.size() < 10 && world.intersect(r, hit, stats); r = spawnRay(hit, r.dir)) hits.push_back(hit);
+        ASSERT_EQ(hits.size(), 4u);
+        EXPECT_TRUE(hits[0].cap && hits[1].cap);
+        EXPECT_EQ(std::min(hits[0].surface, hits[1].surface), 0);
+        EXPECT_EQ(std::max(hits[0].surface, hits[1].surface), 1);
+        EXPECT_EQ(hits[0].surface, 0) << "the scene's order at the tie";
+        EXPECT_FALSE(hits[2].cap || hits[3].cap);
+        EXPECT_EQ(hits[2].surface, innerIndex);
+        ++checked;
+      }
+      EXPECT_EQ(checked, 25);
+    }
+  }
+}
+
 TEST(ClipScene, BadClipsAreRefusedInOneLine) {
   auto refused = [](const std::string& clip, const std::string& where, const std::string& what) {
     const std::string text = R"({"volumes": [{"procedural": {"field": "sphere"}, "isosurfaces": [{"value": 0.5}], "clip": )" + clip + "}]}";

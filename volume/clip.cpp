@@ -24,6 +24,13 @@ void ClipRegion::add(const ClipRegion& other) {
   m_planes.insert(m_planes.end(), other.m_planes.begin(), other.m_planes.end());
 }
 
+bool ClipRegion::operator==(const ClipRegion& o) const {
+  if (m_planes.size() != o.m_planes.size()) return false;
+  for (size_t i = 0; i < m_planes.size(); ++i)
+    if (!(m_planes[i].normal == o.m_planes[i].normal) || m_planes[i].offset != o.m_planes[i].offset) return false;
+  return true;
+}
+
 bool ClipRegion::keeps(const Vec3d& p) const {
   for (const ClipPlane& c : m_planes)
     if (!(dot(c.normal, p) <= c.offset)) return false;

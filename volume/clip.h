@@ -24,6 +24,7 @@ class ClipRegion {
   void add(const ClipRegion& other);
 
   bool empty() const { return m_planes.empty(); }
+  bool operator==(const ClipRegion& o) const;
   const std::vector<ClipPlane>& planes() const { return m_planes; }
   bool keeps(const Vec3d& p) const;
   // The distance from p to the nearest of the planes (infinity without planes).

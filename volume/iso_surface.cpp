@@ -153,7 +153,7 @@ bool IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear,
 template <typename Real, typename Cells>
 ClipSpan IsoSurface::clipSpan(const Cells& cells, const GridRay<Real>& ray, const Vec3d& exactOrg,
                               const Vec3d& exactDir, const Vec3d& org, const Vec3d& dir, double tnear, double tfar,
-                              StartClass start) const {
+                              StartClass start, bool onCap) const {
   ClipSpan span;
   double k0, k1;
   m_clip.extent(org, dir, k0, k1, span.plane0, span.plane1);
@@ -171,7 +171,10 @@ ClipSpan IsoSurface::clipSpan(const Cells& cells, const GridRay<Real>& ray, cons
     return span;
   }
   if (k1 < tfar) span.tfar = k1, span.leaves = true;
-  if (!(k0 > tnear)) return span;
+  // A ray leaving another surface's cap on this region's boundary, heading in: it enters the
+  // region at its start (its origin is only a spawn offset inside).
+  if (onCap && start == StartClass::Unknown && k0 < tnear) k0 = tnear;
+  else if (!(k0 > tnear)) return span;
   span.tnear = k0;
   // Does the walk's ray meet the grid's box at k0 (its begin() would start inside, not at a face)?
   const Real tk = Real(k0);
@@ -231,6 +234,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
                        TraversalStats& stats, StartClass start, GridRayCache* cache, double tstop) const {
   // Runs the traversal with the chosen intersector, in double for the reference and in
   // float otherwise, on the grid's own sample type, and converts the hit to world space.
+  const bool onCap = cache && cache->capClip && !m_clip.empty() && m_order > cache->capOrder && *cache->capClip == m_clip;
   auto run = [&](auto real, const auto& solver) {
     using Real = decltype(real);
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
@@ -245,7 +249,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
         GridRayCache& c = cache ? *cache : local.emplace();
         const bool fresh = floatQueryRay(org, dir, tnear, tfar, start, c);
         if (fresh && !m_clip.empty()) {
-          c.clip = clipSpan(cells, c.ray, c.exact.org, c.exact.dir, org, dir, tnear, tfar, start);
+          c.clip = clipSpan(cells, c.ray, c.exact.org, c.exact.dir, org, dir, tnear, tfar, start, onCap);
           c.exact.tnear = c.clip.tnear;
           c.exact.tfar = c.clip.tfar;
         }
@@ -256,7 +260,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
         ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
         ray = &ray64;
         if (!m_clip.empty()) {
-          localSpan = clipSpan(cells, ray64, ray64.org, ray64.dir, org, dir, tnear, tfar, start);
+          localSpan = clipSpan(cells, ray64, ray64.org, ray64.dir, org, dir, tnear, tfar, start, onCap);
           span = &localSpan;
         }
       }
@@ -580,7 +584,10 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     // reporting one at the seam): the hit of the cell first along the ray wins, whatever order
     // Embree visits the bricks in. Keeping the later one carried the wrong class past the pair
     // (a parity error at 1e6 rays, tests/data/exactness/real_example4d.failures.txt).
-    if (t == tfar && !(hit.segmentStart < lane.segmentStart)) continue;
+    // (Caps of several surfaces on one plane tie in t and segment start: the lowest order wins.)
+    if (t == tfar && !(hit.segmentStart < lane.segmentStart ||
+                       (hit.segmentStart == lane.segmentStart && surface->order() < lane.order)))
+      continue;
     tfar = t;
     RTCHitN_Ng_x(hits, N, i) = hit.normal.x;
     RTCHitN_Ng_y(hits, N, i) = hit.normal.y;
@@ -597,6 +604,7 @@ void intersectCallback(const RTCIntersectFunctionNArguments* args) {
     lane.insideAfter = hit.insideAfter;
     lane.segmentStart = hit.segmentStart;
     lane.cap = hit.cap;
+    lane.order = surface->order();
   }
 }
 

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "volume/bricks.h"
@@ -57,6 +58,12 @@ struct GridRayCache {
   GridRay<float> ray;                   // what the float traversal walks
   ExactEnds exact;  // the same ray in double with its extent: the float traversal's exact ends
   ClipSpan clip;    // a clipped surface's span of the ray
+  // A ray leaving a cap: the clip region whose boundary its origin lies on (a spawn offset
+  // inside it). Another surface clipped by the same region that the ray meets in its solid
+  // right there has its cap at the start too (two solids cut by one plane: the ray that goes
+  // through the first one's cap, a thin sheet, enters the second one's solid there).
+  const ClipRegion* capClip = nullptr;
+  int capOrder = -1;  // IsoSurface::order() of the surface whose cap the ray leaves
 };
 // What the iso-surface callbacks know of one ray of a query, and what they write back: lane i
 // of a packet traced by rtcIntersect8 / rtcOccluded8 (World::intersectPacket), or the one ray
@@ -86,6 +93,7 @@ struct IsoRayLane {
   // SurfaceHit::segmentStart). None yet: infinity.
   double segmentStart = INFINITY;
   bool cap = false;
+  int order = std::numeric_limits<int>::max();  // IsoSurface::order() of the accepted hit
   GridRayCache gridRay;
 };
 struct IsoRayContext {
@@ -109,6 +117,11 @@ class IsoSurface {
   const Grid& grid() const { return m_grid; }
   const std::vector<uint32_t>& activeBricks() const { return m_active; }
   const ClipRegion& clip() const { return m_clip; }
+  // The surface's place in its scene (World sets it): of hits at the same t from the same cell
+  // segment start (caps of several surfaces on one clip plane), the lowest order wins, and a
+  // ray leaving a cap meets the caps there of the surfaces after it only (GridRayCache::capClip).
+  void setOrder(int order) { m_order = order; }
+  int order() const { return m_order; }
   bool solidAbove() const { return m_air == StartClass::Outside; }
   size_t totalBricks() const { return m_bricks.size(); }
 
@@ -189,9 +202,10 @@ class IsoSurface {
                      GridRayCache& cache) const;
   // A clipped surface's span of a query (`ray`: the grid ray the walk takes; `exactOrg`/`exactDir`:
   // the same in double).
+  // `onCap`: the ray leaves a cap of another surface clipped by this one's region (GridRayCache::capClip).
   template <typename Real, typename Cells>
   ClipSpan clipSpan(const Cells& cells, const GridRay<Real>& ray, const Vec3d& exactOrg, const Vec3d& exactDir,
-                    const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start) const;
+                    const Vec3d& org, const Vec3d& dir, double tnear, double tfar, StartClass start, bool onCap) const;
   // A cap at t on clip plane `plane`, leaving the ray in the solid (`intoSolid`) or out of it.
   void capHit(const Vec3d& org, const Vec3d& dir, double t, int plane, bool intoSolid, SurfaceHit& hit) const;
   // A cell hit as a world-space SurfaceHit (the normal from the cell's gradient).
@@ -224,6 +238,7 @@ class IsoSurface {
   std::vector<CellClasses> m_cellClasses;
   ClipRegion m_clip;
   StartClass m_air = StartClass::Outside;  // the class outside the solid (and the clip region)
+  int m_order = 0;
   Transform m_worldToObject;
   bool m_instanced = false;
   double m_boundsPad = 0;  // extra object-space padding of brick bounds for instances
