@@ -300,7 +300,8 @@ def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed
     if tqdm is installed and no callback is given). The GIL is released while rendering.
     Ctrl-C (KeyboardInterrupt) stops the render at the next tile and raises with the partial
     frame as the exception's ``frame`` attribute. The image is the same, bit for bit, as
-    ``isotrace render`` of the same scene with the same options.
+    ``isotrace render`` of the same scene with the same options. One render at a time per
+    process (the stop request it listens to is the process's).
     """
     if not isinstance(scene, Scene):
         scene = Scene.load(scene) if isinstance(scene, (str, os.PathLike)) else Scene(scene)
