@@ -125,11 +125,8 @@ ArrayGrid gridFromArray(py::array array, std::array<double, 3> spacing, std::arr
 
 // ---- Scenes --------------------------------------------------------------------------------
 
-SceneArrays arraysOf(const std::vector<std::shared_ptr<const Grid>>& grids) { return SceneArrays(grids.begin(), grids.end()); }
-
 SceneDesc parseScene(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids) {
-  const SceneArrays arrays = arraysOf(grids);
-  return parseSceneText(text, path, {}, &arrays);
+  return parseSceneText(text, path, {}, &grids);
 }
 
 // What makes two volume entries load the same grid: a World of the last render can lend its
@@ -610,16 +607,14 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("dims", [](const ArrayGrid& g) { const Vec3i d = g.grid->dims(); return py::make_tuple(d.x, d.y, d.z); })
       .def_property_readonly("range", [](const ArrayGrid& g) { float lo, hi; g.grid->range(lo, hi); return py::make_tuple(lo, hi); });
   m.def("grid_from_array", &gridFromArray, py::arg("array"), py::arg("spacing"), py::arg("origin"), py::arg("axes"));
-  m.def("check_scene", [](const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids) {
-    std::vector<std::shared_ptr<const Grid>> g;
-    for (const ArrayGrid& a : grids) g.push_back(a.grid);
-    parseScene(text, path, g);
-  });
   auto gridsOf = [](const std::vector<ArrayGrid>& grids) {
     std::vector<std::shared_ptr<const Grid>> g;
     for (const ArrayGrid& a : grids) g.push_back(a.grid);
     return g;
   };
+  m.def("check_scene", [gridsOf](const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids) {
+    parseScene(text, path, gridsOf(grids));
+  });
   py::class_<Renderer>(m, "Renderer")
       .def(py::init<>())
       .def("render", [gridsOf](Renderer& r, const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids,
