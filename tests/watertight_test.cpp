@@ -166,7 +166,8 @@ TEST(WatertightDump, TheHuntedFailuresPass) {
                                             {"rough_3", "rough_3", 2},
                                             {"real_volumes", "real_example4d", 1},
                                             {"real_volumes", "real_hydrogen_1e5", 1},
-                                            {"real_volumes", "real_hydrogen_20", 1}}) {
+                                            {"real_volumes", "real_hydrogen_20", 1},
+                                            {"real_volumes", "real_hydrogen_20_1e5", 1}}) {
     const SceneDesc scene = parseSceneFile(dir + "/" + hunt.scene + ".json");
     const FailureFile file = readFailures(dir + "/" + hunt.failures + ".failures.txt");
     ASSERT_EQ(file.rays.size(), hunt.count) << hunt.failures;

@@ -96,8 +96,8 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
   // it is in float and in double, so the table holds for the float and the double traversal.
   // The other cells span the brick's tight box: outside it every cell is of one strict class,
   // so a traversal of the box alone finds the same crossings (it enters the box through a face
-  // whose class it evaluates, or takes from the cell behind where that face is exactly on the
-  // surface, as at a brick seam), and Embree culls rays that only cross the uniform part.
+  // whose class it evaluates, or takes from the ray in double where that face is exactly on the
+  // surface, as at a brick seam: seamClass), and Embree culls rays that only cross the uniform part.
   m_primitives.resize(m_active.size());
   m_cellClasses.resize(m_active.size());
   withCellAccess(grid, nullptr, {}, [&](const auto& cells) {

@@ -219,25 +219,42 @@ inline Real approachSide(const Cubic<Real>& c, const Real g[8], Real flat) {
   return side;
 }
 
-// Entering a box through a face exactly on the surface (a brick seam, a restart at a face),
-// the class is the one the ray had in the cell behind that face, as a traversal through it
-// would have carried it: the side the cubic of that cell's segment (ending at the face point
-// `entry`, local to `cell`) approaches zero from. Otherwise, or at the grid's boundary, `carried`.
-// (A function rather than a lambda of the traversal: it runs at most once per query.)
-template <typename Real, typename Cells>
-Real classBehindEntry(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i cell, int entryAxis,
-                      int entryStep, const Vec3<Real>& entry, const Real g[8], Real carried) {
-  Vec3i prev = cell;
-  prev[entryAxis] -= entryStep;
-  if (prev[entryAxis] < 0 || prev[entryAxis] > cells.dims[entryAxis] - 2) return carried;
-  if (trilinear(g, entry) != Real(0)) return carried;
-  CellSegment<Real> behind;
-  cells.load(prev, iso, behind.g);
-  behind.b = entry;
-  behind.b[entryAxis] = Real(1) - entry[entryAxis];
-  behind.a = behind.b - ray.dir;
-  const Real tiny = std::numeric_limits<Real>::denorm_min();
-  return approachSide(cellCubic(behind), behind.g, carried) > Real(0) ? tiny : -tiny;
+// The class (+1 inside, -1 outside) where the ray crosses the grid plane `face` on `axis`, a seam
+// between two bricks' boxes at which the float walk found the field exactly on the surface.
+// A brick's walk leaving through the seam and the next brick's walk entering through it are
+// separate queries that must agree on the class there, or a crossing is counted twice or not at
+// all. The float point cannot decide it: rounded onto an edge of exact zeros (integer data, an
+// integer iso value) it no longer says which side of the edge the ray passes (a hole found at
+// 1e7 rays, hydrogen iso 20 at 1e5). So both take it from the ray in double (`org`, `dir` in
+// grid coordinates), in the cell on the plane's upper side whichever side they are on, and get
+// the same bits. Zero in double too (the double ray through a zero edge): the side the field
+// approaches zero from along the ray in the cell it comes from; still none: outside.
+template <typename Cells>
+int seamClass(const Cells& cells, const Vec3d& org, const Vec3d& dir, double iso, int axis, int face) {
+  const double t = (double(face) - org[axis]) / dir[axis];
+  Vec3i cell;
+  CellSegment<double> seg;
+  for (int a = 0; a < 3; ++a) {
+    if (a == axis) {
+      cell[a] = std::clamp(face, 0, cells.dims[a] - 2);
+      seg.b[a] = double(face - cell[a]);
+    } else {
+      const double x = org[a] + t * dir[a];
+      cell[a] = int(std::clamp(std::floor(x), 0.0, double(cells.dims[a] - 2)));
+      seg.b[a] = std::clamp(x - double(cell[a]), 0.0, 1.0);
+    }
+  }
+  cells.load(cell, iso, seg.g);
+  const double f = trilinear(seg.g, seg.b);
+  if (f != 0) return f > 0 ? 1 : -1;
+  if (dir[axis] > 0) {  // (a seam is never the grid's face: both cells exist)
+    if (cell[axis] == 0) return -1;
+    --cell[axis];
+    seg.b[axis] = 1;
+    cells.load(cell, iso, seg.g);
+  }
+  seg.a = seg.b - dir;
+  return approachSide(cellCubic(seg), seg.g, -1.0) > 0 ? 1 : -1;
 }
 
 // The class (+1 inside, -1 outside, 0 exactly on the surface) of the field of `cell` in double,
@@ -353,9 +370,9 @@ class CellWalk {
     // traps"). `carried` stands in for an exact zero at the start of the next segment; a ray
     // starts outside, by the convention that zero is not inside.
     m_carried = -kTiny;
-    // Entering through a face exactly on the surface, the class behind that face (without it a
+    // Entering through a face exactly on the surface, the class at that seam (without it a
     // crossing through an exact zero on a brick seam was seen by neither brick). Only the first
-    // cell needs it, and only if it is not of one strict sign: see classBehindEntry.
+    // cell needs it, and only if it is not of one strict sign: see seamClass.
     m_entryPending = entryAxis >= 0;
     // A given start class stands for the first segment's f0, whatever the field says there.
     m_startGiven = entryAxis < 0 && m_start != StartClass::Unknown;
@@ -366,7 +383,6 @@ class CellWalk {
 
   // The current cell: steps over it, or prepares its segment for a solve.
   ISO_INLINE Visit visit(TraversalStats& stats) {
-    const GridRay<Real>& ray = *m_ray;
     const Cells& cells = *m_cells;
     ++stats.cellsVisited;
     int m = 0;
@@ -392,11 +408,19 @@ class CellWalk {
     // Cells that cannot change the class are stepped over: one strict sign, or zeros with
     // values only on the side the ray is already on.
     if (m_entryPending) {
+      // Entering through a seam exactly on the surface (the cell behind is not of one strict
+      // class, so it is another brick's): the class there is seamClass's.
       m_entryPending = false;
-      if (positive != 8 && negative != 8)
-        m_carried = classBehindEntry(cells, m_iso, ray, m_cell, m_entryAxis, m_step[m_entryAxis],
-                                     localAt(m_t0, m_entryAxis, faceValue(m_entryAxis, true)), seg.g, m_carried);
+      if (positive != 8 && negative != 8 && !atGridFace(m_entryAxis, true) &&
+          trilinear(seg.g, localAt(m_t0, m_entryAxis, faceValue(m_entryAxis, true))) == Real(0))
+        m_carried = seamClassAt(m_entryAxis, gridFace(m_entryAxis, true)) > 0 ? kTiny : -kTiny;
     }
+    // Leaving through a seam exactly on the surface: the next brick's walk starts in
+    // seamClass's class, so this one ends in it, with a crossing in this cell if it differs.
+    m_seamExit = 0;
+    if (positive != 8 && negative != 8 && m_throughFace && leavesBox(m) && !atGridFace(m, false) &&
+        trilinear(seg.g, localAt(m_tb, m, faceValue(m, false))) == Real(0))
+      m_seamExit = seamClassAt(m, gridFace(m, false));
     const bool carriedIn = m_carried > Real(0);
     if (m_startGiven && ((positive == 8 && !carriedIn) || (negative == 8 && carriedIn))) {
       // The field is strictly on the other side all over the first cell: the crossing lies
@@ -412,7 +436,8 @@ class CellWalk {
       m_carried = -kTiny;
       return Visit::Pass;
     }
-    if ((negative == 0 && (positive == 0 || carriedIn)) || (positive == 0 && !carriedIn))
+    if (((negative == 0 && (positive == 0 || carriedIn)) || (positive == 0 && !carriedIn)) &&
+        (m_seamExit == 0 || (m_seamExit > 0) == carriedIn))
       return Visit::Pass;  // the carried class stands
     ++stats.cellsSolved;
     const int enterAxis = m_enterAxis;
@@ -437,6 +462,7 @@ class CellWalk {
         if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? kTiny : -kTiny;
       }
     }
+    if (m_seamExit != 0) seg.f1 = m_seamExit > 0 ? kTiny : -kTiny;
     if (seg.f1 == Real(0)) seg.f1 = approachSide(cellCubic(seg), seg.g, seg.f0) > Real(0) ? kTiny : -kTiny;
     m_carried = seg.f1 > Real(0) ? kTiny : -kTiny;
     return Visit::Solve;
@@ -513,6 +539,15 @@ class CellWalk {
   }
   // The grid coordinate of the face the ray enters (leaves) the current cell through on
   // `axis`, and whether that face is on the grid's boundary.
+  ISO_INLINE bool leavesBox(int axis) const {
+    const int next = m_cell[axis] + m_step[axis];
+    return next < m_lo[axis] || next >= m_hi[axis];
+  }
+  // seamClass of the ray in double: the exact ray if the walk has it, else its own.
+  int seamClassAt(int axis, int face) const {
+    if (m_exact) return seamClass(*m_cells, m_exact->org, m_exact->dir, m_exact->iso, axis, face);
+    return seamClass(*m_cells, Vec3d(m_ray->org), Vec3d(m_ray->dir), double(m_iso), axis, face);
+  }
   ISO_INLINE int gridFace(int axis, bool entering) const { return m_cell[axis] + int(faceValue(axis, entering)); }
   ISO_INLINE bool atGridFace(int axis, bool entering) const {
     if (axis < 0) return false;
@@ -544,6 +579,7 @@ class CellWalk {
   bool m_throughFace = false;
   Real m_carried = 0;
   bool m_entryPending = false, m_startGiven = false, m_firstSegment = true;
+  int m_seamExit = 0;  // this cell leaves through a seam exactly on the surface: seamClass there, else 0
   CellSegment<Real> m_seg;
 };
 
