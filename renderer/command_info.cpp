@@ -63,7 +63,7 @@ void printPartition(const World& world, const std::string& path, int ranks) {
             for (int x = box.brickLo.x; x < box.brickHi.x; ++x)
               bytes += sparse->slotOf(x, y, z) >= 0 ? double(SparseSamples::kBlockSize) * 4 + 4 : 8;
       } else {
-        bytes += double(box.samples()) * double(scalarTypeSize(g.type()));
+        bytes += double(box.samples(g.dims())) * double(scalarTypeSize(g.type()));
       }
       largest = std::max(largest, bytes);
       Vec3d lo{INFINITY, INFINITY, INFINITY}, hi = -lo;

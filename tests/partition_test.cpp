@@ -37,10 +37,15 @@ TEST(Partition, BoxesCoverEveryBrickOnceAndBalanceTheActiveOnes) {
             EXPECT_EQ(owner[b], -1) << "brick " << b << " in two boxes";
             owner[b] = int(r);
           }
-      // Cells of whole bricks; the samples run one past the last cell (the seam layer).
+      // Cells of whole bricks; the samples held run from one before the first cell to two past
+      // the last (the seam layer, and one more for smooth normals), within the grid.
       EXPECT_EQ(box.cellLo.x % BrickGrid::kCells, 0);
-      EXPECT_EQ(box.samples(), size_t(box.cellHi.x - box.cellLo.x + 1) * size_t(box.cellHi.y - box.cellLo.y + 1) *
-                                   size_t(box.cellHi.z - box.cellLo.z + 1));
+      const Vec3i first = box.windowFirst(), extent = box.windowExtent(grid.dims());
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_EQ(first[a], std::max(box.cellLo[a] - 1, 0));
+        EXPECT_EQ(first[a] + extent[a] - 1, std::min(box.cellHi[a] + 1, grid.dims()[a] - 1));
+      }
+      EXPECT_EQ(box.samples(grid.dims()), size_t(extent.x) * size_t(extent.y) * size_t(extent.z));
       most = std::max(most, box.weight);
     }
     for (int o : owner) EXPECT_GE(o, 0) << "a brick in no box";

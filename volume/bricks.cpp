@@ -39,6 +39,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
         for (int bx = 0; bx < m_count.x; ++bx) {
           const uint32_t b = uint32_t((size_t(bz) * m_count.y + by) * m_count.x + bx);
           const Vec3i c0 = cellBegin(b), c1 = cellEnd(b);
+          if (!grid.holdsCells(c0, c1)) continue;  // (a window's: not held, never active)
           float lo = m_lo[b], hi = m_hi[b];
           for (int z = c0.z; z <= c1.z; ++z)
             for (int y = c0.y; y <= c1.y; ++y) {
@@ -58,6 +59,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
   if (n) {
     m_min = *std::min_element(m_lo.begin(), m_lo.end());
     m_max = *std::max_element(m_hi.begin(), m_hi.end());
+    if (m_min > m_max) m_min = m_max = 0;  // a window holding no whole brick
   }
 }
 

@@ -2,6 +2,8 @@
 // Min/max per brick of 8^3 cells (macro cells). A brick's range covers its own corner
 // samples, including those it shares with its neighbours, so a brick whose range does not
 // bracket the iso value cannot contain a crossing and never becomes an Embree primitive.
+// Of a window of a grid (Grid::isWindow), a brick not wholly held has the empty range
+// (+inf, -inf): it is never active, so nothing reads its samples.
 #include <cstdint>
 #include <vector>
 

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <stdexcept>
 
 #include <limits>
 #include <type_traits>
@@ -38,7 +40,7 @@ bool parseScalarType(const std::string& name, ScalarType& type) {
 }
 
 Grid::Grid(Vec3i dims, Storage samples, Vec3d origin, Vec3d spacing)
-    : m_dims(dims), m_origin(origin), m_spacing(spacing) {
+    : m_dims(dims), m_extent(dims), m_origin(origin), m_spacing(spacing) {
   m_type = static_cast<ScalarType>(samples.index());
   std::visit([this](auto& v) {
     auto owned = std::make_shared<std::decay_t<decltype(v)>>(std::move(v));
@@ -48,18 +50,23 @@ Grid::Grid(Vec3i dims, Storage samples, Vec3d origin, Vec3d spacing)
 }
 
 Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3d origin, Vec3d spacing)
-    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(type), m_samples(std::move(samples)),
+    : m_dims(dims), m_extent(dims), m_origin(origin), m_spacing(spacing), m_type(type), m_samples(std::move(samples)),
       m_data(m_samples.get()) {}
 
+Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3i first, Vec3i extent,
+           Vec3d origin, Vec3d spacing)
+    : m_dims(dims), m_first(first), m_extent(extent), m_origin(origin), m_spacing(spacing), m_type(type),
+      m_samples(std::move(samples)), m_data(m_samples.get()) {}
+
 Grid::Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin, Vec3d spacing)
-    : m_dims(dims), m_origin(origin), m_spacing(spacing), m_type(ScalarType::Float32), m_sparse(std::move(sparse)) {}
+    : m_dims(dims), m_extent(dims), m_origin(origin), m_spacing(spacing), m_type(ScalarType::Float32), m_sparse(std::move(sparse)) {}
 
 void Grid::cellCorners(int x, int y, int z, float out[8]) const {
   if (m_sparse) {
     for (int c = 0; c < 8; ++c) out[c] = sparseValue(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2 & 1));
     return;
   }
-  const size_t sx = 1, sy = size_t(m_dims.x), sz = size_t(m_dims.x) * m_dims.y;
+  const size_t sx = 1, sy = size_t(m_extent.x), sz = size_t(m_extent.x) * m_extent.y;
   const size_t i = index(x, y, z);
   const size_t offsets[8] = {0, sx, sy, sx + sy, sz, sx + sz, sy + sz, sx + sy + sz};
   visitSamples([&](const auto* p) {
@@ -150,7 +157,7 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
   Vec3i c;
   Vec3d f;
   locate(p, c, f);
-  const int64_t stride[3] = {1, m_dims.x, int64_t(m_dims.x) * m_dims.y};
+  const int64_t stride[3] = {1, m_extent.x, int64_t(m_extent.x) * m_extent.y};
   // Per axis: the central differences at the cell's two corners along it, interpolated
   // along it, then bilinearly across it. Away from the grid's faces every neighbour exists
   // (the common case, written out below without a branch); on them the differences become
@@ -221,6 +228,23 @@ Vec3d Grid::smoothGradient(const Vec3d& p) const {
     }
   });
   return g;
+}
+
+Grid windowOf(const Grid& grid, Vec3i first, Vec3i extent) {
+  for (int a = 0; a < 3; ++a)
+    if (first[a] < grid.windowFirst()[a] || extent[a] < 1 ||
+        first[a] + extent[a] > grid.windowFirst()[a] + grid.windowExtent()[a])
+      throw std::invalid_argument("windowOf: the window is not within the grid's samples");
+  if (grid.sparse()) throw std::invalid_argument("windowOf: a sparse grid has no window");
+  const size_t size = scalarTypeSize(grid.type()), row = size_t(extent.x) * size;
+  std::shared_ptr<uint8_t[]> samples(new uint8_t[row * size_t(extent.y) * size_t(extent.z)]);
+  const auto* src = static_cast<const uint8_t*>(grid.data());
+  uint8_t* dst = samples.get();
+  for (int z = 0; z < extent.z; ++z)
+    for (int y = 0; y < extent.y; ++y, dst += row)
+      std::memcpy(dst, src + grid.index(first.x, first.y + y, first.z + z) * size, row);
+  return Grid(grid.dims(), grid.type(), std::shared_ptr<const void>(samples, samples.get()), first, extent,
+              grid.origin(), grid.spacing());
 }
 
 }  // namespace iso

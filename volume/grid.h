@@ -57,6 +57,24 @@ class Grid {
        Vec3d spacing = {1, 1, 1});
   // A sparse float32 grid; `dims - 1` must be 8 times `sparse.bricks`.
   Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+  // A window of a dense grid (a rank's part of a volume split for a data-parallel render): the
+  // grid is the whole volume — dims(), origin() and every coordinate are the whole volume's, so
+  // a ray computes the same bits in any window — but `samples` holds only the samples
+  // [first, first + extent) on each axis, x fastest. Cells whose 8 corners lie in the window
+  // read as they would in the whole grid; nothing may read a sample outside it (BrickGrid leaves
+  // the bricks it does not hold out; callers keep queries to the held bricks).
+  Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec3i first, Vec3i extent,
+       Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+  // The samples held: the whole grid unless it is a window.
+  Vec3i windowFirst() const { return m_first; }
+  Vec3i windowExtent() const { return m_extent; }
+  bool isWindow() const { return !(m_extent == m_dims); }
+  // Whether every sample of the cells [lo, hi) is held.
+  bool holdsCells(Vec3i lo, Vec3i hi) const {
+    for (int a = 0; a < 3; ++a)
+      if (lo[a] < m_first[a] || hi[a] + 1 > m_first[a] + m_extent[a]) return false;
+    return true;
+  }
   // Sparse grids have no dense array: data() is null and visitSamples must not be called;
   // value(), cellCorners() and the statistics below work on both.
   const SparseSamples* sparse() const { return m_sparse.get(); }
@@ -81,14 +99,16 @@ class Grid {
     }
     return f(static_cast<const float*>(m_data));
   }
-  size_t sampleCount() const { return size_t(m_dims.x) * m_dims.y * m_dims.z; }
+  // The samples held (of a window: its own).
+  size_t sampleCount() const { return size_t(m_extent.x) * m_extent.y * m_extent.z; }
   // Memory of the samples as held (a sparse grid: its blocks and brick table).
   size_t bytes() const {
     return m_sparse ? m_sparse->bytes() : sampleCount() * scalarTypeSize(m_type);
   }
 
+  // The index into data() of sample (x, y, z) of the whole grid (it must be held).
   size_t index(int x, int y, int z) const {
-    return (size_t(z) * m_dims.y + size_t(y)) * m_dims.x + size_t(x);
+    return (size_t(z - m_first.z) * size_t(m_extent.y) + size_t(y - m_first.y)) * size_t(m_extent.x) + size_t(x - m_first.x);
   }
   // Every source type converts to float exactly (uint16/int16 fit in 24 bits of mantissa),
   // so all cells sharing a corner see the same bits there.
@@ -130,6 +150,7 @@ class Grid {
 
  private:
   Vec3i m_dims{0, 0, 0};
+  Vec3i m_first{0, 0, 0}, m_extent{0, 0, 0};  // the samples held (all: 0 and dims)
   Vec3d m_origin{0, 0, 0};
   Vec3d m_spacing{1, 1, 1};
   ScalarType m_type = ScalarType::UInt8;
@@ -145,5 +166,11 @@ class Grid {
     return s.block(slot)[(size_t(z - 8 * bz) * k + size_t(y - 8 * by)) * k + size_t(x - 8 * bx)];
   }
 };
+
+// A window of a dense grid (see Grid's window constructor): a copy of its samples
+// [first, first + extent) on each axis, which must lie in the grid, with the whole grid's
+// dims and placement. (The formats without a reader of their own for windows load whole, then
+// cut the window: readVolumeFile.)
+Grid windowOf(const Grid& grid, Vec3i first, Vec3i extent);
 
 }  // namespace iso

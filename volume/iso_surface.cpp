@@ -67,7 +67,8 @@ IsoSurface::IsoSurface(const Grid& grid, const BrickGrid& bricks, double iso, In
       const Vec3d lo = grid.origin() + Vec3d(bricks.cellBegin(b)) * s, hi = grid.origin() + Vec3d(bricks.cellEnd(b)) * s;
       const float bmin = bricks.brickMin(b), bmax = bricks.brickMax(b);
       const bool active = bmin <= isoF && bmax >= isoF && !(bmin == isoF && bmax == isoF);
-      const bool solid = solidAbove ? bmin > isoF : bmax < isoF;
+      const bool held = bmin <= bmax;  // (a window of a grid holds only some bricks: BrickGrid)
+      const bool solid = held && (solidAbove ? bmin > isoF : bmax < isoF);
       switch (clip.classify(lo, hi, margin)) {
         case ClipRegion::BoxSide::Kept:
           if (active) m_active.push_back(b), wholeBox.push_back(false);
@@ -477,8 +478,13 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
   // Covered when the cell lies in the tight box of an active brick (Embree calls that
   // primitive for a ray starting inside its box); every other cell is seen by no query.
   if (!inGrid) return false;
-  const int32_t primitive = m_primitiveOf[m_bricks.brickOf(cell)];
+  const uint32_t brick = m_bricks.brickOf(cell);
+  const int32_t primitive = m_primitiveOf[brick];
   if (primitive >= 0 && m_primitives[primitive].contains(cell)) return false;
+  // A window of the grid (a data-parallel rank's part) answers only in the bricks it holds (of
+  // the others it has no range, BrickGrid): the rank holding the start cell's brick answers, as
+  // the single process would.
+  if (!(m_bricks.brickMin(brick) <= m_bricks.brickMax(brick))) return false;
   const Vec3i next{cell.x + 1, cell.y + 1, cell.z + 1};
   return hit ? query<false>(cell, next, nullptr, {}, org, dir, tnear, tfar, hit, stats, start)
              : query<true>(cell, next, nullptr, {}, org, dir, tnear, tfar, nullptr, stats, start);

@@ -170,7 +170,10 @@ std::shared_ptr<uint8_t[]> allocateSamples(size_t bytes) {
 
 // In place, once the bytes are in the buffer: native byte order, and no NaN or Inf in float
 // data (the error names the first such voxel).
-void finishSamples(uint8_t* data, ScalarType type, const Vec3i& dims, bool bigEndian, const std::string& file) {
+// `dims`: of the samples in `data` (a window's extent), `at`: where they begin in the volume
+// (for the voxel an error names).
+void finishSamples(uint8_t* data, ScalarType type, const Vec3i& dims, bool bigEndian, const std::string& file,
+                   const Vec3i& at = {0, 0, 0}) {
   const size_t n = size_t(dims.x) * dims.y * dims.z;
   const size_t size = scalarTypeSize(type);
   if (bigEndian && size > 1)
@@ -192,7 +195,7 @@ void finishSamples(uint8_t* data, ScalarType type, const Vec3i& dims, bool bigEn
   }
   for (size_t i = first; i < n; ++i) {
     if (!std::isfinite(v[i])) {
-      const size_t x = i % dims.x, y = (i / dims.x) % dims.y, z = i / (size_t(dims.x) * dims.y);
+      const size_t x = at.x + i % dims.x, y = at.y + (i / dims.x) % dims.y, z = at.z + i / (size_t(dims.x) * dims.y);
       throw InputError(file, "voxel (" + std::to_string(x) + ", " + std::to_string(y) + ", " + std::to_string(z) + ")",
                        std::string(std::isnan(v[i]) ? "NaN" : "infinite") + " value in the data");
     }
@@ -873,7 +876,46 @@ VolumeFile loadNifti(const std::string& path) {
 
 // Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
 // memory is the grid itself); gzip-compressed ones are inflated straight into it.
-Grid loadRaw(const std::string& path, const RawLayout& layout) {
+// The window of a raw file's samples, read without the rest: a plain file's rows of the window
+// by their byte ranges, a gzip stream inflated whole but only the window's rows kept.
+Grid loadRawWindow(const std::string& path, std::ifstream& in, bool gzip, const Vec3i& dims, ScalarType type,
+                   bool bigEndian, const SampleWindow& w) {
+  const size_t size = scalarTypeSize(type), expected = checkedBytes(dims, type, path);
+  const size_t row = size_t(w.extent.x) * size, rows = size_t(w.extent.y) * size_t(w.extent.z);
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(row * rows);
+  uint8_t* dst = samples.get();
+  // The file offset of the window's row r (y fastest, then z).
+  auto rowStart = [&](size_t r) {
+    const size_t y = size_t(w.first.y) + r % size_t(w.extent.y), z = size_t(w.first.z) + r / size_t(w.extent.y);
+    return ((z * size_t(dims.y) + y) * size_t(dims.x) + size_t(w.first.x)) * size;
+  };
+  if (!gzip) {
+    for (size_t r = 0; r < rows; ++r) {
+      in.seekg(std::streamoff(rowStart(r)));
+      readExactly(in, dst + r * row, row, path);
+    }
+  } else {
+    size_t produced = 0, r = 0;
+    inflateStream(readFile(path), path, [&](const uint8_t* p, size_t n) {
+      if (n > expected - produced)
+        throw InputError(path, "", "decompressed data is larger than " + layoutName(dims, type) + " (" +
+                                       std::to_string(expected) + " bytes)");
+      const size_t end = produced + n;
+      // Every row of the window that this piece of the stream overlaps.
+      for (; r < rows && rowStart(r) < end; ++r) {
+        const size_t a = std::max(rowStart(r), produced), b = std::min(rowStart(r) + row, end);
+        std::memcpy(dst + r * row + (a - rowStart(r)), p + (a - produced), b - a);
+        if (rowStart(r) + row > end) break;  // the row goes on in the next piece
+      }
+      produced = end;
+    });
+    if (produced != expected) throw InputError(path, "", sizeMismatch(dims, type, produced, expected));
+  }
+  finishSamples(dst, type, w.extent, bigEndian, path, w.first);
+  return Grid(dims, type, std::shared_ptr<const void>(samples, dst), w.first, w.extent);
+}
+
+Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindow* window) {
   const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
   ScalarType type;
@@ -886,6 +928,8 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
     throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
   checkDims(dims, path, "");
   const size_t expected = checkedBytes(dims, type, path);
+  if (window) checkWindow(*window, dims, path);
+  if (stream && window) return windowOf(loadRaw(path, layout, nullptr), window->first, window->extent);
   if (stream) {
     // A named pipe is read no further than the samples allow (with room for gzip's few bytes
     // of framing and stored blocks), then checked like a file.
@@ -908,6 +952,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
   const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
   if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
   if (gzip) checkInflatable(fileSize, expected, path);
+  if (window) return loadRawWindow(path, in, gzip, dims, type, layout.bigEndian, *window);
   std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
   uint8_t* dst = samples.get();
   if (gzip) {
@@ -981,9 +1026,33 @@ const char* volumeExtensions() {
          ".vdb, or a folder of DICOM slices";
 }
 
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const VolumePart& part) {
-  std::error_code ec;
+void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& file) {
+  for (int a = 0; a < 3; ++a)
+    if (w.first[a] < 0 || w.extent[a] < 2 || w.first[a] > dims[a] - w.extent[a])
+      throw InputError(file, "", "the window of samples [" + std::to_string(w.first.x) + ", " + std::to_string(w.first.y) +
+                                     ", " + std::to_string(w.first.z) + "] + [" + std::to_string(w.extent.x) + ", " +
+                                     std::to_string(w.extent.y) + ", " + std::to_string(w.extent.z) +
+                                     "] is not within the volume's " + std::to_string(dims.x) + "x" +
+                                     std::to_string(dims.y) + "x" + std::to_string(dims.z));
+}
+
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const VolumePart& part,
+                          const SampleWindow* window) {
   const std::string name = lower(fs::path(path).filename().string());
+  bool raw = false;
+  for (const char* ext : {".raw", ".bin", ".dat"}) raw = raw || endsWith(name, ext) || endsWith(name, std::string(ext) + ".gz");
+  if (window && !raw) {
+    // Formats without a window reader of their own: read whole, keep the window.
+    VolumeFile f = readVolumeFile(path, layout, part, nullptr);
+    if (f.grid.sparse()) throw InputError(path, "", "a sparse (OpenVDB) volume cannot be split into windows yet");
+    checkWindow(*window, f.grid.dims(), path);
+    const Vec3d origin = f.grid.origin(), spacing = f.grid.spacing();
+    f.grid = windowOf(f.grid, window->first, window->extent);
+    f.grid.setOrigin(origin);
+    f.grid.setSpacing(spacing);
+    return f;
+  }
+  std::error_code ec;
   const bool folder = fs::is_directory(path, ec);
   if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
     throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
@@ -1001,8 +1070,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz"))
     // libnifti overflows a stack buffer on some malformed headers: it reads in a child process.
     return readInChildProcess(path, "libnifti", [&] { return loadNifti(path); });
-  for (const char* raw : {".raw", ".bin", ".dat"})
-    if (endsWith(name, raw) || endsWith(name, std::string(raw) + ".gz")) return wrap(loadRaw(path, layout), "raw");
+  if (raw) return wrap(loadRaw(path, layout, window), "raw");
   if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, part.series);
   if (endsWith(name, ".vdb")) return loadVdb(path, part.grid);
   const std::string ext = fs::path(name).extension().string();

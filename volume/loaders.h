@@ -40,7 +40,18 @@ struct VolumePart {
   std::string series;  // SeriesInstanceUID
   std::string grid;    // VDB grid name
 };
-VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
+// The samples a reader keeps of a volume split over ranks (Grid's window constructor):
+// [first, first + extent) on each axis, at least 2 samples on each.
+struct SampleWindow {
+  Vec3i first, extent;
+};
+// `window` (a data-parallel rank's part): only those samples are kept. Raw files (plain or gzip)
+// read only them (a plain file their byte ranges; a gzip stream is inflated whole, keeping only
+// the window's rows); the other formats are read whole and the window is cut from them. A window
+// not within the volume is an InputError naming the file; OpenVDB volumes have no window yet.
+VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {},
+                          const SampleWindow* window = nullptr);
+void checkWindow(const SampleWindow& window, const Vec3i& dims, const std::string& file);
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;

@@ -90,4 +90,15 @@ std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<
   return s.out;
 }
 
+Vec3i RankBox::windowFirst() const {
+  return {std::max(cellLo.x - 1, 0), std::max(cellLo.y - 1, 0), std::max(cellLo.z - 1, 0)};
+}
+
+Vec3i RankBox::windowExtent(Vec3i dims) const {
+  const Vec3i first = windowFirst();
+  Vec3i e;
+  for (int a = 0; a < 3; ++a) e[a] = std::min(cellHi[a] + 1, dims[a] - 1) - first[a] + 1;
+  return e;
+}
+
 }  // namespace iso

@@ -17,8 +17,14 @@ struct RankBox {
   Vec3i cellLo, cellHi;    // cells [cellLo, cellHi)
   size_t bricks = 0;       // bricks in the box
   double weight = 0;       // of the weights given (active bricks)
-  size_t samples() const {
-    return size_t(cellHi.x - cellLo.x + 1) * size_t(cellHi.y - cellLo.y + 1) * size_t(cellHi.z - cellLo.z + 1);
+  // The samples a rank holds for the box (a window of the grid, Grid::windowFirst/Extent): its
+  // cells' corners, plus one more layer where the grid has one, for the central differences of
+  // smooth shading normals (Grid::smoothGradient) in its cells next to the seams.
+  Vec3i windowFirst() const;
+  Vec3i windowExtent(Vec3i dims) const;
+  size_t samples(Vec3i dims) const {
+    const Vec3i e = windowExtent(dims);
+    return size_t(e.x) * size_t(e.y) * size_t(e.z);
   }
 };
 

@@ -135,19 +135,22 @@ struct BrickClassLookup {
 template <typename Sample>
 struct CellAccess : BrickClassLookup {
   const Sample* data = nullptr;
-  Vec3i dims;
+  Vec3i dims;             // the whole grid's
+  size_t ey = 0;          // samples held along y (a window's, Grid::windowExtent)
   size_t sy = 0, sz = 0;  // strides of y and z, in samples
+  size_t shift = 0;       // the index the window's first sample would have without the window
 
   CellAccess(const Grid& grid, const Sample* samples, const CellClasses* brickClasses = nullptr,
              Vec3i brickOrigin = {})
-      : BrickClassLookup{brickClasses, brickOrigin}, data(samples), dims(grid.dims()), sy(size_t(dims.x)),
-        sz(size_t(dims.x) * size_t(dims.y)) {}
+      : BrickClassLookup{brickClasses, brickOrigin}, data(samples), dims(grid.dims()),
+        ey(size_t(grid.windowExtent().y)), sy(size_t(grid.windowExtent().x)), sz(sy * ey),
+        shift((size_t(grid.windowFirst().z) * ey + size_t(grid.windowFirst().y)) * sy + size_t(grid.windowFirst().x)) {}
 
   // Corner c = bit0 x, bit1 y, bit2 z; values minus the iso value. Every sample type converts
   // to float exactly, and float to double, so all precisions see the same corner values.
   template <typename Real>
   void load(const Vec3i& c, Real iso, Real g[8]) const {
-    const Sample* p = data + (size_t(c.z) * size_t(dims.y) + size_t(c.y)) * sy + size_t(c.x);
+    const Sample* p = data + ((size_t(c.z) * ey + size_t(c.y)) * sy + size_t(c.x) - shift);
     g[0] = Real(float(p[0])) - iso;
     g[1] = Real(float(p[1])) - iso;
     g[2] = Real(float(p[sy])) - iso;

@@ -1,0 +1,168 @@
+// The groundwork of data-parallel rendering (issue 30): a rank holds only a window of a volume's
+// samples (Grid's window, RankBox::windowFirst/Extent), read from the file without the rest, and
+// its World answers rays with the hits in its own bricks. The closest of the ranks' answers must
+// be the hit a World of the whole volume finds, bit for bit, along whole chains of rays that
+// carry their class across the rank seams, so that a render split over ranks can give the
+// single process's image.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+
+#include "scene/world.h"
+#include "volume/bricks.h"
+#include "volume/input_error.h"
+#include "volume/loaders.h"
+#include "volume/partition.h"
+#include "tests/test_util.h"
+
+namespace iso {
+namespace {
+
+std::vector<RankBox> boxesOf(const Grid& grid, float iso, int ranks) {
+  const BrickGrid bricks(grid);
+  std::vector<double> weights(bricks.size(), 0.0);
+  for (uint32_t b : bricks.activeBricks(iso)) weights[b] = 1;
+  return partitionBricks(bricks, weights, ranks, "test");
+}
+
+// Every sample a window holds is the whole grid's, and it holds no more than its window.
+void expectWindowOf(const Grid& whole, const Grid& window, const SampleWindow& w) {
+  ASSERT_TRUE(window.dims() == whole.dims());
+  ASSERT_TRUE(window.windowFirst() == w.first);
+  ASSERT_TRUE(window.windowExtent() == w.extent);
+  EXPECT_EQ(window.bytes(), size_t(w.extent.x) * w.extent.y * w.extent.z * scalarTypeSize(whole.type()));
+  size_t differ = 0;
+  for (int z = w.first.z; z < w.first.z + w.extent.z; ++z)
+    for (int y = w.first.y; y < w.first.y + w.extent.y; ++y)
+      for (int x = w.first.x; x < w.first.x + w.extent.x; ++x) differ += window.value(x, y, z) != whole.value(x, y, z);
+  EXPECT_EQ(differ, 0u);
+}
+
+TEST(DataParallel, WindowsReadOnlyTheirSamplesAndEqualTheWholeVolume) {
+  // A plain raw file (byte ranges), a gzip raw file (one inflated stream) and a format read
+  // whole and cut (NRRD).
+  for (const char* file : {"volumes/hydrogen_atom_128x128x128_uint8.raw", "volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz",
+                           "volumes/nucleon/nucleon.nrrd"}) {
+    SCOPED_TRACE(file);
+    const std::string path = test::dataPath(file);
+    const Grid whole = readVolumeFile(path).grid;
+    for (int ranks : {2, 3}) {
+      for (const RankBox& box : boxesOf(whole, 40.f, ranks)) {
+        const SampleWindow w{box.windowFirst(), box.windowExtent(whole.dims())};
+        const Grid window = readVolumeFile(path, {}, {}, &w).grid;
+        expectWindowOf(whole, window, w);
+        EXPECT_TRUE(window.origin() == whole.origin());
+        EXPECT_TRUE(window.spacing() == whole.spacing());
+      }
+    }
+  }
+}
+
+TEST(DataParallel, WindowsOutsideTheVolumeAreRefusedNamingTheFile) {
+  const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
+  for (const SampleWindow& w : {SampleWindow{{-1, 0, 0}, {10, 10, 10}}, SampleWindow{{0, 0, 0}, {129, 10, 10}},
+                                SampleWindow{{120, 0, 0}, {9, 10, 10}}, SampleWindow{{0, 0, 0}, {1, 10, 10}},
+                                SampleWindow{{0, 0, 0}, {10, 0, 10}}}) {
+    try {
+      readVolumeFile(path, {}, {}, &w);
+      ADD_FAILURE() << "a window outside the volume was read";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("hydrogen_atom_128x128x128_uint8.raw"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("not within the volume's 128x128x128"), std::string::npos) << e.what();
+    }
+  }
+  // The same for a format cut after reading, and a gzip file that is shorter than its name says.
+  const SampleWindow outside{{0, 0, 0}, {500, 2, 2}};
+  EXPECT_THROW(readVolumeFile(test::dataPath("volumes/nucleon/nucleon.nrrd"), {}, {}, &outside), InputError);
+  const std::string dir = test::scratchDir();
+  const std::string truncated = dir + "/short_16x16x16_uint8.raw";
+  {
+    std::FILE* f = std::fopen(truncated.c_str(), "wb");
+    std::vector<uint8_t> bytes(16 * 16 * 15, 7);
+    std::fwrite(bytes.data(), 1, bytes.size(), f);
+    std::fclose(f);
+  }
+  const SampleWindow first{{0, 0, 0}, {16, 16, 4}};
+  EXPECT_THROW(readVolumeFile(truncated, {}, {}, &first), InputError);  // the size disagrees with the name
+}
+
+// The closest of the ranks' hits (their Worlds each hold one window).
+bool closestOfRanks(const std::vector<std::unique_ptr<World>>& ranks, const Ray& ray, Hit& best, TraversalStats& stats) {
+  bool found = false;
+  for (const auto& world : ranks) {
+    Hit h;
+    if (world->intersect(ray, h, stats) && (!found || h.t < best.t)) {
+      best = h;
+      found = true;
+    }
+  }
+  return found;
+}
+
+TEST(DataParallel, TheClosestOfTheRanksHitsIsTheWholeVolumesHit) {
+  // hydrogen: uint8 data and integer iso values put whole edges of exact zeros on the seams.
+  const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
+  const char* scene = R"({"volumes": [{"array": 0, "isosurfaces": [{"value": 20}, {"value": 10}, {"value": 40.5}]}]})";
+  IntersectorSpec spec;
+  for (double offset : {0.0, 1e5}) {
+    for (int ranks : {2, 3}) {
+      SCOPED_TRACE("offset " + std::to_string(offset) + ", " + std::to_string(ranks) + " ranks");
+      Grid whole = readVolumeFile(path).grid;
+      whole.setOrigin({offset, offset, offset});
+      const SceneArrays wholeArray{std::make_shared<const Grid>(whole)};
+      const World single(parseSceneText(scene, "whole.json", {}, &wholeArray), spec);
+      std::vector<std::unique_ptr<World>> parts;
+      for (const RankBox& box : boxesOf(whole, 20.f, ranks)) {
+        SampleWindow w{box.windowFirst(), box.windowExtent(whole.dims())};
+        Grid window = readVolumeFile(path, {}, {}, &w).grid;
+        window.setOrigin(whole.origin());
+        const SceneArrays arrays{std::make_shared<const Grid>(std::move(window))};
+        parts.push_back(std::make_unique<World>(parseSceneText(scene, "rank.json", {}, &arrays), spec));
+      }
+      // Chains of rays from random points in and around the volume: each next ray leaves the
+      // last hit carrying its class, as a path's rays do.
+      std::mt19937 rng(7);
+      std::uniform_real_distribution<double> u(-0.1, 1.1), n(-1, 1);
+      size_t hits = 0, differ = 0;
+      TraversalStats stats;
+      for (int chain = 0; chain < 6000; ++chain) {
+        Ray ray;
+        ray.org = Vec3f(Vec3d(offset, offset, offset) + Vec3d(u(rng), u(rng), u(rng)) * 127.0);
+        // Half in any direction, half towards the middle, where the atom's lobes are.
+        Vec3d d;
+        if (chain % 2) {
+          do d = {n(rng), n(rng), n(rng)}; while (length(d) > 1 || length(d) < 0.1);
+        } else {
+          const Vec3d target(40 + 48 * (u(rng) + 0.1) / 1.2, 40 + 48 * (u(rng) + 0.1) / 1.2, 40 + 48 * (u(rng) + 0.1) / 1.2);
+          d = Vec3d(offset, offset, offset) + target - Vec3d(ray.org);
+        }
+        if (!(length(d) > 1e-3)) continue;
+        ray.dir = Vec3f(normalize(d));
+        for (int k = 0; k < 40; ++k) {
+          Hit a, b;
+          const bool inSingle = single.intersect(ray, a, stats), inParts = closestOfRanks(parts, ray, b, stats);
+          const bool same = inSingle == inParts &&
+                            (!inSingle || (std::memcmp(&a.position64, &b.position64, sizeof(Vec3d)) == 0 && a.t == b.t &&
+                                           a.surface == b.surface && a.insideAfter == b.insideAfter &&
+                                           a.normal == b.normal && a.shading == b.shading));
+          if (!same) {
+            ++differ;
+            ADD_FAILURE() << "chain " << chain << " ray " << k << ": single " << inSingle << " t " << a.t << " surface " << a.surface
+                          << " after " << a.insideAfter << "; ranks " << inParts << " t " << b.t << " surface " << b.surface
+                          << " after " << b.insideAfter << "; from surface " << ray.fromSurface << " inside " << ray.fromInside;
+            break;
+          }
+          if (!inSingle) break;
+          ++hits;
+          ray = spawnRay(a, ray.dir);
+        }
+      }
+      EXPECT_EQ(differ, 0u);
+      EXPECT_GT(hits, 10000u);  // the chains cross the surfaces and the seams many times
+    }
+  }
+}
+
+}  // namespace
+}  // namespace iso
