@@ -2,8 +2,9 @@
 // samples (Grid's window, RankBox::windowFirst/Extent), read from the file without the rest, and
 // its World answers rays with the hits in its own bricks. The closest of the ranks' answers must
 // be the hit a World of the whole volume finds, bit for bit, along whole chains of rays that
-// carry their class across the rank seams, so that a render split over ranks can give the
-// single process's image.
+// carry their class across the rank seams, and a shadow segment blocked for the whole volume
+// exactly when it is for some rank, so that a render split over ranks can give the single
+// process's image.
 #include <gtest/gtest.h>
 
 #include <cstring>
@@ -124,7 +125,7 @@ TEST(DataParallel, TheClosestOfTheRanksHitsIsTheWholeVolumesHit) {
       // last hit carrying its class, as a path's rays do.
       std::mt19937 rng(7);
       std::uniform_real_distribution<double> u(-0.1, 1.1), n(-1, 1);
-      size_t hits = 0, differ = 0;
+      size_t hits = 0, differ = 0, blocked = 0, shadowDiffer = 0;
       TraversalStats stats;
       for (int chain = 0; chain < 6000; ++chain) {
         Ray ray;
@@ -153,12 +154,22 @@ TEST(DataParallel, TheClosestOfTheRanksHitsIsTheWholeVolumesHit) {
                           << " after " << b.insideAfter << "; from surface " << ray.fromSurface << " inside " << ray.fromInside;
             break;
           }
+          // A shadow segment from the ray's origin to a random point: blocked for the whole volume
+          // if and only if blocked for some rank.
+          Ray shadow = ray;
+          shadow.tfar = float(0.05 + 0.9 * (u(rng) + 0.1) / 1.2) * (inSingle ? a.t * 1.5f + 1 : 200.f);
+          bool anyRank = false;
+          for (const auto& world : parts) anyRank = anyRank || world->occluded(shadow, stats);
+          blocked += anyRank;
+          shadowDiffer += single.occluded(shadow, stats) != anyRank;
           if (!inSingle) break;
           ++hits;
           ray = spawnRay(a, ray.dir);
         }
       }
       EXPECT_EQ(differ, 0u);
+      EXPECT_EQ(shadowDiffer, 0u);
+      EXPECT_GT(blocked, 1000u);
       EXPECT_GT(hits, 10000u);  // the chains cross the surfaces and the seams many times
     }
   }
