@@ -29,7 +29,7 @@ struct RenderFlags {
   int spp = 0, threads = -1, maxDepth = 0, frames = 1;
   std::optional<double> orbit;
   long long seed = -1;
-  bool quiet = false, alpha = false, allowLarge = false, colorbar = false;
+  bool quiet = false, alpha = false, allowLarge = false, colorbar = false, dataParallel = false;
   std::optional<double> exposure, clamp, adaptive;
   SceneOverrides overrides;
 };
@@ -104,6 +104,7 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
                      std::to_string(s.width) + "x" + std::to_string(s.height) + " is more than " +
                          std::to_string(kMaxFilmPixels) + " pixels (~" +
                          std::to_string(kMaxFilmPixels * 170 >> 30) + " GiB to render); --allow-large renders it anyway");
+  if (f.dataParallel) s.dataParallel = true;
   if (f.spp != 0) s.spp = f.spp;  // CLI11 checked the range; 0 is "not given"
   if (f.maxDepth != 0) s.maxDepth = f.maxDepth;
   if (f.threads >= 0) s.threads = f.threads;
@@ -298,6 +299,12 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   r.scene = parseSceneFile(flags.scene, flags.overrides);
   applyFlags(flags, r.scene);
   r.seq = frameSequence(flags, r.scene);
+  if (r.scene.settings.dataParallel) {
+    checkDataParallel(r.scene);
+    if (r.seq.frames > 1)
+      throw InputError(flags.frames > 1 ? "--frames" : "--iso-sweep", "",
+                       "a data-parallel render (--data-parallel) renders one frame; sequences go frame by frame over ranks without it");
+  }
   r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
   std::error_code ec;
   if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
@@ -372,8 +379,10 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       std::fprintf(stderr, "isotrace: rendering %dx%d, %d spp, %s%s\n", s.width, s.height, s.spp, s.integrator.c_str(), which.c_str());
       std::fflush(stderr);
     }
-    const RenderResult result = byTiles ? renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures)
-                                        : renderFrame(camera, *integrator, options, film, direct.get());
+    const RenderResult result =
+        !byTiles ? renderFrame(camera, *integrator, options, film, direct.get())
+        : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &figures)
+                         : renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures);
     if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
 
     std::map<std::string, std::string> metadata = {
@@ -535,6 +544,7 @@ int render(const RenderFlags& flags) {
     std::string error;
     try {
       setup = prepareRender(flags);
+      if (setup.scene.settings.dataParallel) setup.scene.dataPart = DataPart{job.rank(), job.size()};
       if (const int f = firstFrame(); f >= 0) buildWorld(f);
       if (stopRequested()) error = "interrupted while loading: no image written";
     } catch (const InputError& e) {
@@ -548,6 +558,22 @@ int render(const RenderFlags& flags) {
     if (!error.empty()) {
       if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", error.c_str());
       return stopRequested() ? 130 : 2;
+    }
+    if (setup.scene.settings.dataParallel && world) {
+      // Each rank holds part of the volumes: the framing and the lights' power are the whole
+      // scene's, the union of the ranks' bounds (bit for bit the single process's).
+      Vec3d lower = world->lower(), upper = world->upper();
+      job.unionOfBounds(lower, upper);
+      try {
+        world->setSceneBounds(setup.scene, lower, upper);
+      } catch (const InputError& e) {
+        error = e.what();
+      }
+      error = job.firstError(error);
+      if (!error.empty()) {
+        if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", error.c_str());
+        return 2;
+      }
     }
   }
   try {
@@ -576,6 +602,9 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_option("--aov", f.aov, "extra EXR layers, comma-separated: albedo, normal, depth, variance, samples");
   cmd->add_option("--stats", f.stats, "write times, ray counts and counters as JSON to this file");
   cmd->add_option("--intersector", f.intersector, std::string("intersector: ") + intersectorList());
+  cmd->add_flag("--data-parallel", f.dataParallel,
+                "under mpirun: each rank holds only its part of each volume and the ranks answer each other's rays "
+                "(\"distribution\": \"data\"; docs/distributed.md); the same image as one process");
   cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: paths in flight, rays traced in packets) or scalar (one ray at a time, the reference); the same image");
   cmd->add_option("--resolution", f.resolution, "image size WIDTHxHEIGHT");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));

@@ -1,7 +1,10 @@
 #include "renderer/distributed.h"
 
 #include <mpi.h>
+#include <tbb/blocked_range.h>
 #include <tbb/concurrent_queue.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <unistd.h>
 
@@ -15,6 +18,7 @@
 #include <mutex>
 #include <limits>
 #include <thread>
+#include <type_traits>
 
 namespace iso {
 
@@ -258,6 +262,14 @@ int MpiJob::sum(int v) const {
   return total;
 }
 
+void MpiJob::unionOfBounds(Vec3d& lower, Vec3d& upper) const {
+  double lo[3] = {lower.x, lower.y, lower.z}, hi[3] = {-upper.x, -upper.y, -upper.z}, v[6];
+  double mine[6] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]};
+  MPI_Allreduce(mine, v, 6, MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);  // (max as the min of negatives)
+  lower = {v[0], v[1], v[2]};
+  upper = {-v[3], -v[4], -v[5]};
+}
+
 RenderResult MpiJob::combine(const RenderResult& mine, int framesMine, int framesAll) const {
   if (!distributed()) return mine;
   RenderResult total;
@@ -426,7 +438,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     if (doneRanks == size - 1) outbox.drain();
     result.counters = workers.join();
     result.seconds = since(start);
-    if (figures) *figures = {piecesOf, busyOf};
+    if (figures) *figures = {piecesOf, busyOf, {}, {}};
     if (doneRanks == size - 1) {
       RayCounters total;
       sendCounters(result.counters, total, 0);
@@ -480,6 +492,263 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
   result.seconds = since(start);
   RayCounters unused;
   sendCounters(result.counters, unused, 0);
+  return result;
+}
+
+
+namespace {
+
+static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<Hit>,
+              "rays and hits go between ranks as bytes (every rank runs the same binary)");
+
+// The ranks of a data-parallel render answering each other's rays. Every call is collective:
+// all ranks call it together, each with its own rays (maybe none).
+class RankTracer {
+ public:
+  RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
+      : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_counts(static_cast<size_t>(ranks)), m_offsets(static_cast<size_t>(ranks)) {}
+
+  // The closest hit of each of `rays` over all ranks' parts of the scene.
+  void intersect(const std::vector<Ray>& rays, std::vector<Hit>& hits, std::vector<char>& found, TraversalStats& stats) {
+    gather(rays);
+    std::vector<Answer> answers(m_all.size());
+    trace(stats, [&](size_t i, TraversalStats& s) { answers[i].found = m_world.intersect(m_all[i], answers[i].hit, s); });
+    const std::vector<Answer> back = scatter(answers);
+    hits.assign(rays.size(), Hit());
+    found.assign(rays.size(), 0);
+    for (int from = 0; from < m_ranks; ++from)  // ranks in order: the lower one wins a tie
+      for (size_t i = 0; i < rays.size(); ++i) {
+        const Answer& a = back[size_t(from) * rays.size() + i];
+        if (a.found && (!found[i] || a.hit.t < hits[i].t)) {
+          hits[i] = a.hit;
+          found[i] = 1;
+        }
+      }
+  }
+
+  // Whether each of `rays` is blocked on some rank.
+  void occluded(const std::vector<Ray>& rays, std::vector<char>& blocked, TraversalStats& stats) {
+    gather(rays);
+    std::vector<char> answers(m_all.size());
+    trace(stats, [&](size_t i, TraversalStats& s) { answers[i] = m_world.occluded(m_all[i], s) ? 1 : 0; });
+    const std::vector<char> back = scatter(answers);
+    blocked.assign(rays.size(), 0);
+    for (int from = 0; from < m_ranks; ++from)
+      for (size_t i = 0; i < rays.size(); ++i) blocked[i] = blocked[i] || back[size_t(from) * rays.size() + i];
+  }
+
+  double raysAsked = 0, bytesSent = 0;
+
+ private:
+  struct Answer {
+    Hit hit;
+    int found = 0;
+  };
+
+  // Every rank's rays on every rank, rank by rank.
+  void gather(const std::vector<Ray>& mine) {
+    const int n = int(mine.size());
+    MPI_Allgather(&n, 1, MPI_INT, m_counts.data(), 1, MPI_INT, MPI_COMM_WORLD);
+    size_t total = 0;
+    for (int r = 0; r < m_ranks; ++r) {
+      m_offsets[size_t(r)] = int(total);
+      total += size_t(m_counts[size_t(r)]);
+    }
+    m_all.resize(total);
+    std::vector<int> bytes(static_cast<size_t>(m_ranks)), at(static_cast<size_t>(m_ranks));
+    for (int r = 0; r < m_ranks; ++r) {
+      bytes[size_t(r)] = m_counts[size_t(r)] * int(sizeof(Ray));
+      at[size_t(r)] = m_offsets[size_t(r)] * int(sizeof(Ray));
+    }
+    MPI_Allgatherv(mine.data(), n * int(sizeof(Ray)), MPI_BYTE, m_all.data(), bytes.data(), at.data(), MPI_BYTE,
+                   MPI_COMM_WORLD);
+    raysAsked += n;
+    bytesSent += double(n) * sizeof(Ray) * (m_ranks - 1);
+  }
+
+  // answer(i, stats) for every gathered ray, on this rank's threads.
+  template <typename F>
+  void trace(TraversalStats& stats, F&& answer) {
+    tbb::enumerable_thread_specific<TraversalStats> local;
+    m_arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m_all.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        TraversalStats& s = local.local();
+        for (size_t i = r.begin(); i < r.end(); ++i) answer(i, s);
+      });
+    });
+    for (const TraversalStats& s : local) stats.add(s);
+  }
+
+  // Each rank's answers back to it: this rank's rays' answers from every rank, rank by rank.
+  template <typename T>
+  std::vector<T> scatter(const std::vector<T>& answers) {
+    const int mine = m_counts[size_t(m_rank)];
+    std::vector<T> back(size_t(mine) * size_t(m_ranks));
+    std::vector<int> sendBytes(static_cast<size_t>(m_ranks)), sendAt(static_cast<size_t>(m_ranks)), recvBytes(static_cast<size_t>(m_ranks)), recvAt(static_cast<size_t>(m_ranks));
+    for (int r = 0; r < m_ranks; ++r) {
+      sendBytes[size_t(r)] = m_counts[size_t(r)] * int(sizeof(T));
+      sendAt[size_t(r)] = m_offsets[size_t(r)] * int(sizeof(T));
+      recvBytes[size_t(r)] = mine * int(sizeof(T));
+      recvAt[size_t(r)] = r * mine * int(sizeof(T));
+    }
+    MPI_Alltoallv(answers.data(), sendBytes.data(), sendAt.data(), MPI_BYTE, back.data(), recvBytes.data(),
+                  recvAt.data(), MPI_BYTE, MPI_COMM_WORLD);
+    bytesSent += double(answers.size() - size_t(mine)) * sizeof(T);
+    return back;
+  }
+
+  const World& m_world;
+  tbb::task_arena& m_arena;
+  int m_rank, m_ranks;
+  std::vector<int> m_counts, m_offsets;
+  std::vector<Ray> m_all;
+};
+
+bool anyRank(bool mine) {
+  int v = mine ? 1 : 0, all = 0;
+  MPI_Allreduce(&v, &all, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
+  return all != 0;
+}
+
+}  // namespace
+
+RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
+                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
+  const auto start = Clock::now();
+  const int w = film.width(), h = film.height(), ranks = job.size(), rank = job.rank();
+  const TileRenderer tiles(camera, integrator, options, w, h);
+  const World& world = integrator.world();
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  RankTracer tracer(world, arena, rank, ranks);
+  tbb::enumerable_thread_specific<RayCounters> counters;
+  RayCounters traced;  // the traversal of the rays this rank answered
+  // The tiles this rank rendered, and their sums (pixel (x0, y0) first, rows of the tile's width).
+  std::vector<int> mine;
+  std::vector<PixelSums> sums;
+  std::vector<PathState> paths;
+  std::vector<Ray> rays;
+  std::vector<Hit> hits;
+  std::vector<char> answers;
+  std::vector<size_t> asking;
+  // The paths that asked for a ray (`shadow`: a shadow ray) since the last stage, and their rays.
+  auto collect = [&](bool shadow) {
+    asking.clear();
+    rays.clear();
+    for (size_t i = 0; i < paths.size(); ++i) {
+      PathState& p = paths[i];
+      if (shadow ? !p.shadowing : !p.tracing) continue;
+      (shadow ? p.shadowing : p.tracing) = false;
+      asking.push_back(i);
+      rays.push_back(shadow ? p.shadow : p.ray);
+    }
+  };
+  auto eachAsking = [&](auto&& stage) {
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, asking.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        RayCounters& c = counters.local();
+        for (size_t k = r.begin(); k < r.end(); ++k) stage(paths[asking[k]], k, c);
+      });
+    });
+  };
+  const int rounds = (tiles.tiles() + ranks - 1) / ranks;
+  bool stopped = false;
+  for (int round = 0; round < rounds && !stopped; ++round) {
+    const int tile = round * ranks + rank;
+    const bool have = tile < tiles.tiles();
+    TileRenderer::Rect r{0, 0, 0, 0};
+    const size_t tileSums = sums.size();  // where this tile's sums begin
+    if (have) {
+      r = tiles.rect(tile);
+      mine.push_back(tile);
+      sums.resize(tileSums + size_t(r.pixels()));
+    }
+    constexpr int kSamplesAtOnce = 16;
+    for (int s0 = 0; s0 < options.spp; s0 += kSamplesAtOnce) {
+      const int s1 = std::min(options.spp, s0 + kSamplesAtOnce), ns = s1 - s0;
+      paths.resize(size_t(r.pixels()) * size_t(ns));
+      for (int y = r.y0; y < r.y1; ++y)
+        for (int x = r.x0; x < r.x1; ++x)
+          for (int s = s0; s < s1; ++s) {
+            PathState& p = paths[(size_t(y - r.y0) * size_t(r.x1 - r.x0) + size_t(x - r.x0)) * size_t(ns) + size_t(s - s0)];
+            Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
+            const float jx = sampler.next(), jy = sampler.next();
+            p.begin(camera.generateRay(x + jx, y + jy), sampler);
+            integrator.start(p);
+          }
+      // The wavefront flow's stages (TileRenderer::renderPassWavefront): camera rays, then shadow
+      // rays and continuation rays until no path of any rank asks for one.
+      bool cameraStage = true;
+      for (;;) {
+        if (!cameraStage) {
+          collect(true);
+          tracer.occluded(rays, answers, traced.traversal);
+          eachAsking([&](PathState& p, size_t k, RayCounters&) { integrator.afterShadow(p, answers[k] != 0); });
+        }
+        cameraStage = false;
+        collect(false);
+        tracer.intersect(rays, hits, answers, traced.traversal);
+        eachAsking([&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, answers[k] != 0, hits[k], c); });
+        bool more = false;
+        for (const PathState& p : paths) more = more || p.tracing || p.shadowing;
+        if (!anyRank(more)) break;
+      }
+      // Each pixel's samples in sample order.
+      for (size_t pixel = 0; pixel < size_t(r.pixels()); ++pixel)
+        for (int s = 0; s < ns; ++s) {
+          PathState& p = paths[pixel * size_t(ns) + size_t(s)];
+          integrator.finish(p);
+          addSample(sums[tileSums + pixel], p.out, options.alpha);
+        }
+    }
+    // A stop request (any rank's) ends the frame after this round: the image has the tiles done.
+    stopped = anyRank(stopRequested());
+  }
+
+  // Rank 0 gathers every rank's tiles.
+  RenderResult result;
+  RayCounters mineCounters = traced;
+  for (const RayCounters& c : counters) mineCounters.add(c);
+  sendCounters(mineCounters, result.counters, 0);
+  const int tileCount = int(mine.size()), sumBytes = int(sums.size() * sizeof(PixelSums));
+  std::vector<int> tileCounts(static_cast<size_t>(ranks)), byteCounts(static_cast<size_t>(ranks));
+  MPI_Gather(&tileCount, 1, MPI_INT, tileCounts.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
+  MPI_Gather(&sumBytes, 1, MPI_INT, byteCounts.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
+  std::vector<int> tileAt(static_cast<size_t>(ranks)), byteAt(static_cast<size_t>(ranks));
+  int allTiles = 0, allBytes = 0;
+  for (int q = 0; q < ranks && rank == 0; ++q) {
+    tileAt[size_t(q)] = allTiles;
+    byteAt[size_t(q)] = allBytes;
+    allTiles += tileCounts[size_t(q)];
+    allBytes += byteCounts[size_t(q)];
+  }
+  std::vector<int> allTileIds(static_cast<size_t>(allTiles));
+  std::vector<PixelSums> allSums(size_t(allBytes) / sizeof(PixelSums));
+  MPI_Gatherv(mine.data(), tileCount, MPI_INT, allTileIds.data(), tileCounts.data(), tileAt.data(), MPI_INT, 0,
+              MPI_COMM_WORLD);
+  MPI_Gatherv(sums.data(), sumBytes, MPI_BYTE, allSums.data(), byteCounts.data(), byteAt.data(), MPI_BYTE, 0,
+              MPI_COMM_WORLD);
+  double asked[2] = {tracer.raysAsked, tracer.bytesSent};
+  std::vector<double> allAsked(static_cast<size_t>(2 * ranks));
+  MPI_Gather(asked, 2, MPI_DOUBLE, allAsked.data(), 2, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  result.seconds = since(start);
+  if (rank != 0) return result;
+  if (figures) {
+    figures->tiles.assign(tileCounts.begin(), tileCounts.end());
+    figures->raysAsked.clear();
+    figures->bytesSent.clear();
+    for (int q = 0; q < ranks; ++q) {
+      figures->raysAsked.push_back(allAsked[size_t(2 * q)]);
+      figures->bytesSent.push_back(allAsked[size_t(2 * q + 1)]);
+    }
+  }
+  std::vector<PixelSums> frame(size_t(w) * size_t(h));
+  size_t at = 0;
+  for (int tile : allTileIds) {
+    const TileRenderer::Rect r = tiles.rect(tile);
+    for (int y = r.y0; y < r.y1; ++y)
+      for (int x = r.x0; x < r.x1; ++x) frame[size_t(y) * size_t(w) + size_t(x)] = allSums[at++];
+  }
+  resolveFrame(frame, options, film, direct, result);
   return result;
 }
 

@@ -35,6 +35,9 @@ class MpiJob {
   std::string firstError(const std::string& mine) const;
   // Collective: the sum of `v` over all ranks, on every rank.
   int sum(int v) const;
+  // Collective: the union of every rank's box [lower, upper] (an empty one: lower > upper), on
+  // every rank.
+  void unionOfBounds(Vec3d& lower, Vec3d& upper) const;
   // Collective: the frames' figures of all ranks summed (counters, samples) on rank 0.
   RenderResult combine(const RenderResult& mine, int framesMine, int framesAll) const;
   // Ends the whole job now (a rank that cannot go on; the others would wait for it forever).
@@ -52,6 +55,8 @@ class MpiJob {
 struct RankFigures {
   std::vector<int> tiles;
   std::vector<double> busySeconds;
+  // Data-parallel: rays this rank asked about (its paths' rays) and bytes it sent, per rank.
+  std::vector<double> raysAsked, bytesSent;
 };
 
 // One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image
@@ -59,5 +64,16 @@ struct RankFigures {
 // the image of renderFrame, whatever the ranks and threads.
 RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
+
+// One frame of a data-parallel render ("distribution": "data"): each rank's World holds only its
+// part of each volume (SceneDesc::dataPart), and the ranks work in lockstep. Rank r renders tiles
+// r, r + N, ... with the wavefront flow's stages (all samples of a tile, 16 at a time); at each
+// stage every rank's rays go to every rank, each answers them against its part (a closest hit,
+// or whether a shadow segment is blocked), and the asker keeps the closest hit (the lower rank
+// on a tie) or "blocked" if any rank is. Every brick is one rank's and a brick's answer is the
+// single process's (tests/data_parallel_test.cpp), so the image is bit for bit renderFrame's.
+// Rank 0 gathers the tiles' sums. Collective; `figures` gets the rays each rank sent and answered.
+RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
+                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 
 }  // namespace iso

@@ -58,25 +58,6 @@ bool TileRenderer::converges(const PixelSums& p) const {
 
 namespace {
 
-// Adds one sample to its pixel's sums (both ray flows, in sample order).
-[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
-  const bool background = !std::isfinite(result.depth);
-  const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
-  p.L += L;
-  p.L2 += L * L;
-  const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
-  p.luminance += lum;
-  p.luminance2 += lum * lum;
-  p.direct += Vec3d(result.direct);
-  p.albedo += Vec3d(result.albedo);
-  p.normal += Vec3d(result.normal);
-  if (!background) {
-    p.depth += result.depth;
-    ++p.depthHits;
-  }
-  ++p.samples;
-}
-
 // The paths of one tile's pass, reused from pass to pass by each thread: at most kTile^2 pixels
 // x 16 samples (the largest pass) = 4,096 paths of 304 bytes, 1.2 MiB, whatever the image size.
 struct Wavefront {

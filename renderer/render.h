@@ -69,6 +69,25 @@ struct PixelSums {
   bool converged = false;  // adaptive sampling: takes no more samples
 };
 
+// Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order).
+[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
+  const bool background = !std::isfinite(result.depth);
+  const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
+  p.L += L;
+  p.L2 += L * L;
+  const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
+  p.luminance += lum;
+  p.luminance2 += lum * lum;
+  p.direct += Vec3d(result.direct);
+  p.albedo += Vec3d(result.albedo);
+  p.normal += Vec3d(result.normal);
+  if (!background) {
+    p.depth += result.depth;
+    ++p.depthHits;
+  }
+  ++p.samples;
+}
+
 // The frame's tiles (16x16 pixels) and how samples reach a tile's pixels, pass by pass: the
 // single-process renderFrame and the MPI layer (renderer/distributed.h), which hands out one
 // pass of one tile at a time, share it, so a pixel gets the same sums in the same order.

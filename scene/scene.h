@@ -144,6 +144,16 @@ struct RenderSettings {
   // this share of the mean (0: off; every pixel takes spp).
   double noiseThreshold = 0;
   RayFlow rayFlow = RayFlow::Wavefront;
+  // "distribution": "data" (--data-parallel): under MPI each rank holds only its part of each
+  // volume (renderer/distributed.h); "image" (the default): every rank holds the whole scene.
+  bool dataParallel = false;
+};
+
+// The part of the scene's volumes this process holds in a data-parallel render: each volume with
+// iso-surfaces is split into `ranks` boxes of whole bricks (volume/partition.h), and this process
+// keeps the window of box `rank` (Grid's window). One rank: the whole volumes.
+struct DataPart {
+  int rank = 0, ranks = 1;
 };
 
 struct SceneDesc {
@@ -155,6 +165,7 @@ struct SceneDesc {
   std::map<std::string, MaterialDesc> materials;
   std::vector<LightDesc> lights;
   ClipRegion clip;  // the scene's "clip" (world space): every volume, and meshes that do not emit
+  DataPart dataPart;  // set by the renderer under MPI with "distribution": "data"
   // The command line's changes to the file (SceneOverrides), as applied: "POINTER=VALUE", the
   // value as compact JSON, in the order given (--iso first). Images record them.
   std::vector<std::string> overrides;

@@ -648,7 +648,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
   }
   if (const Json* j = r.get("integrator")) {
     ObjectReader in(*j, "/integrator", path,
-                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold", "ray_flow"});
+                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold", "ray_flow", "distribution"});
     scene.settings.integrator = in.string("type", scene.settings.integrator);
     if (!isKnownIntegrator(scene.settings.integrator))
       in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
@@ -662,6 +662,10 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
     const std::string flow = in.string("ray_flow", rayFlowName(scene.settings.rayFlow));
     if (!parseRayFlow(flow, scene.settings.rayFlow))
       in.fail("/integrator/ray_flow", "unknown ray flow '" + flow + "' (known: wavefront, scalar)");
+    const std::string distribution = in.string("distribution", scene.settings.dataParallel ? "data" : "image");
+    if (distribution != "data" && distribution != "image")
+      in.fail("/integrator/distribution", "unknown distribution '" + distribution + "' (known: image, data)");
+    scene.settings.dataParallel = distribution == "data";
     in.finish();
   }
   if (const Json* j = r.get("intersector")) {

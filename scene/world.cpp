@@ -1,5 +1,6 @@
 #include "scene/world.h"
 
+
 #include "scene/texture.h"
 
 #include <algorithm>
@@ -12,6 +13,7 @@
 #include <tuple>
 
 #include "volume/input_error.h"
+#include "volume/partition.h"
 
 namespace iso {
 namespace {
@@ -141,32 +143,39 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
     m_buildSeconds += secondsSince(commitStart);
     RTCBounds b;
     rtcGetSceneBounds(m_scene, &b);
-    const bool bounded = b.lower_x <= b.upper_x;
-    const Vec3d lower{b.lower_x, b.lower_y, b.lower_z}, upper{b.upper_x, b.upper_y, b.upper_z};
-    // Embree asserts on rays that start beyond ~1.8e18 (and float precision is long gone far
-    // before): coordinates are bounded well inside that, for geometry and the camera.
-    for (const double c : {lower.x, lower.y, lower.z, upper.x, upper.y, upper.z})
-      if (bounded && !(std::fabs(c) <= kMaxCoordinate))
-        throw InputError(scene.path, "", "the scene reaches coordinate " + std::to_string(c) +
-                                             ": coordinates beyond +-1e15 are not supported");
-    if (m_camera.frameScene && bounded) m_camera = frameBounds(lower, upper);
-    checkCamera(m_camera, scene);
-    // Lights are chosen by power; distant ones by what falls on the scene (its bounding
-    // sphere). Without any power (black lights) the choice is uniform.
-    const float radius = bounded ? float(0.5 * length(upper - lower)) : 1.f;
-    std::vector<float> powers;
-    double total = 0;
-    for (const Light& l : m_lights) {
-      const float p = l.power(radius);
-      powers.push_back(std::isfinite(p) && p > 0 ? p : 0.f);
-      total += powers.back();
-    }
-    if (!(total > 0)) std::fill(powers.begin(), powers.end(), 1.f);
-    m_lightPick = Distribution1D(powers);
+    m_lower = {b.lower_x, b.lower_y, b.lower_z};
+    m_upper = {b.upper_x, b.upper_y, b.upper_z};
+    m_unframedCamera = m_camera;  // the scene's, or a glTF node's
+    setSceneBounds(scene, m_lower, m_upper);
   } catch (...) {
     release();
     throw;
   }
+}
+
+void World::setSceneBounds(const SceneDesc& scene, const Vec3d& lower, const Vec3d& upper) {
+  const bool bounded = lower.x <= upper.x;
+  // Embree asserts on rays that start beyond ~1.8e18 (and float precision is long gone far
+  // before): coordinates are bounded well inside that, for geometry and the camera.
+  for (const double c : {lower.x, lower.y, lower.z, upper.x, upper.y, upper.z})
+    if (bounded && !(std::fabs(c) <= kMaxCoordinate))
+      throw InputError(scene.path, "", "the scene reaches coordinate " + std::to_string(c) +
+                                           ": coordinates beyond +-1e15 are not supported");
+  m_camera = m_unframedCamera;
+  if (m_camera.frameScene && bounded) m_camera = frameBounds(lower, upper);
+  checkCamera(m_camera, scene);
+  // Lights are chosen by power; distant ones by what falls on the scene (its bounding
+  // sphere). Without any power (black lights) the choice is uniform.
+  const float radius = bounded ? float(0.5 * length(upper - lower)) : 1.f;
+  std::vector<float> powers;
+  double total = 0;
+  for (const Light& l : m_lights) {
+    const float p = l.power(radius);
+    powers.push_back(std::isfinite(p) && p > 0 ? p : 0.f);
+    total += powers.back();
+  }
+  if (!(total > 0)) std::fill(powers.begin(), powers.end(), 1.f);
+  m_lightPick = Distribution1D(powers);
 }
 
 World::~World() { release(); }
@@ -427,6 +436,47 @@ void World::loadMeshes(const SceneDesc& scene) {
   }
 }
 
+void checkDataParallel(const SceneDesc& scene) {
+  auto refuse = [&](const std::string& where, const std::string& what) {
+    throw InputError(scene.path, where, what + " is not supported with \"distribution\": \"data\" (--data-parallel) yet");
+  };
+  if (scene.settings.noiseThreshold > 0) refuse("/integrator/noise_threshold", "adaptive sampling");
+  if (!scene.clip.empty()) refuse("/clip", "clipping");
+  for (const auto& [name, m] : scene.materials)
+    if (m.thin && m.type == MaterialType::Dielectric) refuse("/materials/" + name, "a thin dielectric (light through it)");
+  for (const VolumeDesc& v : scene.volumes) {
+    if (!v.clip.empty()) refuse(v.where + "/clip", "clipping");
+    if (!v.slices.empty()) refuse(v.where + "/slices", "a slice plane");
+    for (size_t k = 0; k < v.isosurfaces.size(); ++k) {
+      const IsoSurfaceDesc& iso = v.isosurfaces[k];
+      const std::string where = v.where + "/isosurfaces/" + std::to_string(k);
+      if (iso.colorBy || iso.capColorBy) refuse(where, "colouring by data");
+      const auto m = scene.materials.find(iso.material);
+      if (m != scene.materials.end() && (m->second.emission.x > 0 || m->second.emission.y > 0 || m->second.emission.z > 0))
+        refuse(where, "an emissive iso-surface");
+    }
+  }
+}
+
+namespace {
+// This rank's window of volume v (SceneDesc::dataPart): boxes of whole bricks balanced by the
+// bricks active for the volume's iso values, the same on every rank. (The whole volume is read
+// first: the balance needs every brick's range. Reading only the window, after a pass that
+// gathers the ranges, is what docs/distributed.md lists next.)
+Grid rankWindow(const SceneDesc& scene, size_t v, const Grid& whole) {
+  const VolumeDesc& desc = scene.volumes[v];
+  const std::string where = desc.where;
+  if (whole.sparse()) throw InputError(scene.path, where, "a sparse (OpenVDB) volume cannot be split over ranks yet (\"distribution\": \"data\")");
+  const BrickGrid bricks(whole);
+  std::vector<double> weights(bricks.size(), 0.0);
+  for (const IsoSurfaceDesc& iso : desc.isosurfaces)
+    for (uint32_t b : bricks.activeBricks(float(iso.value))) weights[b] = 1;
+  const std::vector<RankBox> boxes = partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + where);
+  const RankBox& box = boxes[size_t(scene.dataPart.rank)];
+  return windowOf(whole, box.windowFirst(), box.windowExtent(whole.dims()));
+}
+}  // namespace
+
 void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
   for (size_t v = 0; v < scene.volumes.size(); ++v) {
     const VolumeDesc& desc = scene.volumes[v];
@@ -438,6 +488,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     } else {
       info.name = desc.array ? "array" : desc.field ? "procedural" : desc.file;
       VolumeFile file = loadVolume(desc);
+      if (scene.dataPart.ranks > 1 && !desc.isosurfaces.empty()) file.grid = rankWindow(scene, v, file.grid);
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;
       info.toObject = info.transform.inverse();

@@ -136,6 +136,13 @@ class World {
   Vec3f environment(const Vec3f& dir) const;
 
   const CameraDesc& camera() const { return m_camera; }
+  // The bounds of what this World holds (Embree's scene bounds; none: lower > upper).
+  Vec3d lower() const { return m_lower; }
+  Vec3d upper() const { return m_upper; }
+  // What depends on the scene's bounds (the framing camera, distant lights' power) from other
+  // bounds: a data-parallel rank's World holds part of the scene, and takes the union of all
+  // ranks' bounds, which is the whole scene's (SceneDesc::dataPart).
+  void setSceneBounds(const SceneDesc& scene, const Vec3d& lower, const Vec3d& upper);
   const std::vector<VolumeInfo>& volumes() const { return m_volumes; }
   const std::vector<SurfaceInfo>& surfaces() const { return m_surfaces; }
   const std::vector<MeshInfo>& meshes() const { return m_meshInfo; }
@@ -211,7 +218,8 @@ class World {
   RTCDevice m_device = nullptr;
   RTCScene m_scene = nullptr;
   std::vector<RTCScene> m_subScenes;
-  CameraDesc m_camera;
+  CameraDesc m_camera, m_unframedCamera;
+  Vec3d m_lower, m_upper;
   std::vector<GltfModel> m_models;
   std::vector<std::vector<int>> m_modelMaterials;  // [model][glTF material] -> material, -1 unbuilt
   std::vector<std::unique_ptr<TriangleMesh>> m_meshStore;
@@ -261,5 +269,9 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov = 40);
 // then the scene's keys ("origin" and "spacing" replace the file's; "transform" comes after its
 // affine). The result's toWorld is the whole grid-space-to-world placement.
 VolumeFile loadVolume(const VolumeDesc& desc);
+// What a data-parallel render ("distribution": "data") cannot do yet, as an InputError naming the
+// place: queries the ranks would each answer for their own part only (colour by data, emissive or
+// clipped iso-surfaces, thin sheets' transmission, slices) and adaptive sampling.
+void checkDataParallel(const SceneDesc& scene);
 
 }  // namespace iso
