@@ -163,8 +163,18 @@ std::string rankFigures(const RankFigures* f) {
     most = std::max(most, f->busySeconds[r]);
     least = std::min(least, f->busySeconds[r]);
   }
+  std::string dataParallel;
+  if (!f->raysAsked.empty()) {
+    auto list = [](const std::vector<double>& v) {
+      std::string s;
+      for (size_t r = 0; r < v.size(); ++r) s += (r ? ", " : "") + jsonNumber(v[r]);
+      return "[" + s + "]";
+    };
+    dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"bytes_sent_per_rank\": " +
+                   list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) + ",\n";
+  }
   return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +
-         jsonNumber(least > 0 ? most / least : 0) + ",\n";
+         jsonNumber(least > 0 ? most / least : 0) + ",\n" + dataParallel;
 }
 
 }  // namespace
@@ -183,7 +193,7 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
                "{\n  \"scene\": %s,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %d,\n  \"spp_requested\": %d,\n"
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n  \"ray_flow\": %s,\n"
-               "  \"overrides\": %s,\n  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n%s"
+               "  \"overrides\": %s,\n  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n  \"distribution\": \"%s\",\n%s"
                "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
@@ -193,7 +203,7 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
-               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, ranksText.c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, s.dataParallel ? "data" : "image", ranksText.c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined,

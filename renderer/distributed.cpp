@@ -438,7 +438,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     if (doneRanks == size - 1) outbox.drain();
     result.counters = workers.join();
     result.seconds = since(start);
-    if (figures) *figures = {piecesOf, busyOf, {}, {}};
+    if (figures) *figures = {piecesOf, busyOf, {}, {}, {}};
     if (doneRanks == size - 1) {
       RayCounters total;
       sendCounters(result.counters, total, 0);
@@ -537,7 +537,18 @@ class RankTracer {
       for (size_t i = 0; i < rays.size(); ++i) blocked[i] = blocked[i] || back[size_t(from) * rays.size() + i];
   }
 
-  double raysAsked = 0, bytesSent = 0;
+  // Whether any rank says yes (collective).
+  bool anyRank(bool mine) {
+    const auto t0 = Clock::now();
+    int v = mine ? 1 : 0, all = 0;
+    MPI_Allreduce(&v, &all, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
+    waitSeconds += since(t0);
+    return all != 0;
+  }
+
+  // Rays of this rank's paths, bytes it sent, seconds it spent in the exchanges (sending, and
+  // waiting for the slowest rank).
+  double raysAsked = 0, bytesSent = 0, waitSeconds = 0;
 
  private:
   struct Answer {
@@ -548,6 +559,7 @@ class RankTracer {
   // Every rank's rays on every rank, rank by rank.
   void gather(const std::vector<Ray>& mine) {
     const int n = int(mine.size());
+    const auto t0 = Clock::now();
     MPI_Allgather(&n, 1, MPI_INT, m_counts.data(), 1, MPI_INT, MPI_COMM_WORLD);
     size_t total = 0;
     for (int r = 0; r < m_ranks; ++r) {
@@ -562,6 +574,7 @@ class RankTracer {
     }
     MPI_Allgatherv(mine.data(), n * int(sizeof(Ray)), MPI_BYTE, m_all.data(), bytes.data(), at.data(), MPI_BYTE,
                    MPI_COMM_WORLD);
+    waitSeconds += since(t0);
     raysAsked += n;
     bytesSent += double(n) * sizeof(Ray) * (m_ranks - 1);
   }
@@ -591,8 +604,10 @@ class RankTracer {
       recvBytes[size_t(r)] = mine * int(sizeof(T));
       recvAt[size_t(r)] = r * mine * int(sizeof(T));
     }
+    const auto t0 = Clock::now();
     MPI_Alltoallv(answers.data(), sendBytes.data(), sendAt.data(), MPI_BYTE, back.data(), recvBytes.data(),
                   recvAt.data(), MPI_BYTE, MPI_COMM_WORLD);
+    waitSeconds += since(t0);
     bytesSent += double(answers.size() - size_t(mine)) * sizeof(T);
     return back;
   }
@@ -603,12 +618,6 @@ class RankTracer {
   std::vector<int> m_counts, m_offsets;
   std::vector<Ray> m_all;
 };
-
-bool anyRank(bool mine) {
-  int v = mine ? 1 : 0, all = 0;
-  MPI_Allreduce(&v, &all, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
-  return all != 0;
-}
 
 }  // namespace
 
@@ -690,7 +699,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         eachAsking([&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, answers[k] != 0, hits[k], c); });
         bool more = false;
         for (const PathState& p : paths) more = more || p.tracing || p.shadowing;
-        if (!anyRank(more)) break;
+        if (!tracer.anyRank(more)) break;
       }
       // Each pixel's samples in sample order.
       for (size_t pixel = 0; pixel < size_t(r.pixels()); ++pixel)
@@ -701,7 +710,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         }
     }
     // A stop request (any rank's) ends the frame after this round: the image has the tiles done.
-    stopped = anyRank(stopRequested());
+    stopped = tracer.anyRank(stopRequested());
   }
 
   // Rank 0 gathers every rank's tiles.
@@ -727,18 +736,22 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
               MPI_COMM_WORLD);
   MPI_Gatherv(sums.data(), sumBytes, MPI_BYTE, allSums.data(), byteCounts.data(), byteAt.data(), MPI_BYTE, 0,
               MPI_COMM_WORLD);
-  double asked[2] = {tracer.raysAsked, tracer.bytesSent};
-  std::vector<double> allAsked(static_cast<size_t>(2 * ranks));
-  MPI_Gather(asked, 2, MPI_DOUBLE, allAsked.data(), 2, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   result.seconds = since(start);
+  double asked[3] = {tracer.raysAsked, tracer.bytesSent, tracer.waitSeconds};
+  std::vector<double> allAsked(static_cast<size_t>(3 * ranks));
+  MPI_Gather(asked, 3, MPI_DOUBLE, allAsked.data(), 3, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   if (rank != 0) return result;
   if (figures) {
     figures->tiles.assign(tileCounts.begin(), tileCounts.end());
     figures->raysAsked.clear();
     figures->bytesSent.clear();
+    figures->busySeconds.clear();
+    figures->waitSeconds.clear();
     for (int q = 0; q < ranks; ++q) {
-      figures->raysAsked.push_back(allAsked[size_t(2 * q)]);
-      figures->bytesSent.push_back(allAsked[size_t(2 * q + 1)]);
+      figures->raysAsked.push_back(allAsked[size_t(3 * q)]);
+      figures->bytesSent.push_back(allAsked[size_t(3 * q + 1)]);
+      figures->waitSeconds.push_back(allAsked[size_t(3 * q + 2)]);
+      figures->busySeconds.push_back(std::max(0.0, result.seconds - allAsked[size_t(3 * q + 2)]));
     }
   }
   std::vector<PixelSums> frame(size_t(w) * size_t(h));

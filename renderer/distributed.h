@@ -55,8 +55,9 @@ class MpiJob {
 struct RankFigures {
   std::vector<int> tiles;
   std::vector<double> busySeconds;
-  // Data-parallel: rays this rank asked about (its paths' rays) and bytes it sent, per rank.
-  std::vector<double> raysAsked, bytesSent;
+  // Data-parallel: per rank, the rays of its paths (answered by every rank), the bytes it sent,
+  // and the seconds it spent in the exchanges (busySeconds: the rest of the frame's).
+  std::vector<double> raysAsked, bytesSent, waitSeconds;
 };
 
 // One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image

@@ -160,6 +160,93 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
   EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 100) << "no hang";
 }
 
+// Data-parallel (--data-parallel): each rank holds only its box of each volume and the ranks
+// answer each other's rays; the image is the single process's, bit for bit, for any number of
+// ranks and threads. Scenes where paths cross the rank seams many times: a CT with a glass skin
+// around bone (two iso values, path tracing), a field whose seams run through the surface, and
+// glTF meshes with two volumes.
+TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
+  const std::string dir = test::scratchDir();
+  const std::string data = test::dataPath("");
+  const std::string materials = R"("materials": {"glass": {"type": "dielectric", "ior": 1.3, "color": [0.95, 0.85, 0.8]},
+      "bone": {"type": "diffuse", "color": [0.9, 0.85, 0.7]}, "red": {"type": "metallic_roughness", "color": [0.8, 0.3, 0.2], "roughness": 0.3},
+      "floor": {"type": "diffuse", "color": 0.6}},
+    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}, {"type": "environment", "radiance": [0.35, 0.4, 0.5]}])";
+  const std::map<std::string, std::string> scenes = {
+      {"ct", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 6, "max_depth": 6},
+        "volumes": [{"file": ")" + data + R"(volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz", "spacing": [1.40625, 1.40625, 2.5],
+          "isosurfaces": [{"value": 50, "material": "glass"}, {"value": 150, "material": "bone"}]}], )" + materials + "}"},
+      {"field", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 6, "max_depth": 5},
+        "volumes": [{"procedural": {"field": "gyroid_ball", "resolution": [72, 72, 72]},
+          "isosurfaces": [{"value": 0.0, "material": "glass"}]}], )" + materials + "}"},
+      {"mixed", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 4, "max_depth": 4},
+        "meshes": [{"file": ")" + data + R"(meshes/2CylinderEngine.glb", "transform": {"translate": [0, 181, 0]}},
+                   {"shape": "quad", "transform": {"scale": 1500, "translate": [250, 0, 0]}, "material": "floor"}],
+        "volumes": [{"file": ")" + data + R"(volumes/neghip_64x64x64_uint8.raw", "spacing": [5, 5, 5], "transform": {"translate": [450, 0, -160]},
+                     "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100, "material": "red"}]},
+                    {"file": ")" + data + R"(volumes/hydrogen_atom_128x128x128_uint8.raw", "spacing": [2, 2, 2], "transform": {"translate": [-300, 0, -100]},
+                     "isosurfaces": [{"value": 20, "material": "red"}]}], )" + materials + "}"}};
+  for (const auto& [name, text] : scenes) {
+    SCOPED_TRACE(name);
+    test::writeText(dir + "/" + name + ".json", text);
+    const std::string base = dir + "/" + name;
+    const auto one = runIsotrace("render " + base + ".json --data-parallel --threads 2 --quiet --aov albedo,normal,depth -o " +
+                                 base + "_one.exr --stats " + base + "_one.json");
+    ASSERT_EQ(one.status, 0) << one.err;
+    const std::vector<float> reference = readExr(base + "_one.exr");
+    ASSERT_FALSE(reference.empty());
+    for (const auto& [ranks, threads] : std::vector<std::pair<int, int>>{{2, 1}, {3, 2}}) {
+      const std::string out = base + "_" + std::to_string(ranks);
+      const auto r = runCommand(mpirun(ranks) + ISOTRACE_BINARY + " render " + base + ".json --data-parallel --threads " +
+                                std::to_string(threads) + " --quiet --aov albedo,normal,depth -o " + out + ".exr --stats " +
+                                out + ".json");
+      ASSERT_EQ(r.status, 0) << r.err;
+      EXPECT_EQ(r.out, out + ".exr\n") << "only rank 0 writes the image";
+      EXPECT_EQ(readExr(out + ".exr"), reference) << ranks << " ranks";
+      const nlohmann::json stats = readJson(out + ".json"), single = readJson(base + "_one.json");
+      EXPECT_EQ(stats["rays"], single["rays"]);
+      EXPECT_EQ(stats["distribution"], "data");
+      // Every ray of a path was asked of the ranks by the rank that owns its pixel.
+      double asked = 0;
+      for (const auto& n : stats["rays_asked_per_rank"]) {
+        EXPECT_GT(n.get<double>(), 0) << stats.dump();
+        asked += n.get<double>();
+      }
+      EXPECT_EQ(asked, single["rays"]["total"].get<double>());
+      EXPECT_EQ(stats["bytes_sent_per_rank"].size(), size_t(ranks));
+    }
+  }
+}
+
+// What a data-parallel render cannot do yet is refused in one line, alone and under mpirun.
+TEST(Mpi, DataParallelRefusesWhatItCannotDoYet) {
+  const std::string dir = test::scratchDir();
+  const std::string volume = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
+  test::writeText(dir + "/colour.json", R"({"volumes": [{"file": ")" + volume +
+                                            R"(", "isosurfaces": [{"value": 20, "color_by": {"field": "gradient_magnitude", "range": [0, 10]}}]}]})");
+  test::writeText(dir + "/thin.json", R"({"materials": {"sheet": {"type": "dielectric", "thin": true}},
+    "volumes": [{"file": ")" + volume + R"(", "isosurfaces": [{"value": 20, "material": "sheet"}]}]})");
+  test::writeText(dir + "/plain.json", R"({"volumes": [{"file": ")" + volume + R"(", "isosurfaces": [{"value": 20}]}]})");
+  const std::string image = dir + "/out.png";
+  struct Case {
+    std::string args, expected;
+  };
+  for (const Case& c : {Case{dir + "/colour.json", dir + "/colour.json: /volumes/0/isosurfaces/0: colouring by data is not supported"},
+                        Case{dir + "/thin.json", dir + "/thin.json: /materials/sheet: a thin dielectric"},
+                        Case{dir + "/plain.json --adaptive 0.1", "adaptive sampling is not supported"},
+                        Case{dir + "/plain.json --frames 2 --orbit 90", "--frames: a data-parallel render"}}) {
+    for (int ranks : {1, 2}) {
+      const std::string command = (ranks > 1 ? mpirun(ranks) : std::string()) + ISOTRACE_BINARY + " render " + c.args +
+                                  " --data-parallel --quiet -o " + image;
+      const auto r = runCommand(command);
+      EXPECT_EQ(r.status, 2) << command << "\n" << r.err;
+      EXPECT_NE(r.err.find(c.expected), std::string::npos) << command << "\n" << r.err;
+      EXPECT_EQ(r.err.find("isotrace:", r.err.find("isotrace:") + 1), std::string::npos) << "one line: " << r.err;
+      EXPECT_FALSE(fs::exists(image));
+    }
+  }
+}
+
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
 // writes the image of the samples gathered so far, every pixel sampled (pieces go out pass
 // by pass), marked interrupted.
