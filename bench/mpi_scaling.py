@@ -7,8 +7,13 @@ pieces per second, the balance (busiest over idlest rank's busy seconds, from --
 busy seconds of each rank, and checks that both images are the same bits. ISOTRACE=path runs
 another build.
 
+--data-parallel: both renders with --data-parallel (the ranks each hold part of every volume
+and answer each other's rays; one process is the same render whole); also prints the rays the
+ranks asked each other about, the bytes they sent per frame and the seconds they spent in the
+exchanges.
+
 Usage: bench/mpi_scaling.py [--runs 3] [--ranks 2] [--threads 1] [--resolution 960x540]
-       [--spp 16] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
+       [--spp 16] [--data-parallel] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
 """
 import argparse
 import json
@@ -39,17 +44,20 @@ def main():
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--resolution", default="960x540")
     parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--data-parallel", action="store_true")
     a = parser.parse_args()
     scenes = a.scenes or [os.path.join(ROOT, "bench", "scenes", "gyroid_ball.json")]
     mpirun = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(a.ranks)]
     args = ["--resolution", a.resolution, "--spp", str(a.spp), "--threads", str(a.threads), "--seed", "7"]
+    if a.data_parallel:
+        args.append("--data-parallel")
     # busy per rank: the seconds each rank's render threads spent in pieces (wall time of the
     # pieces): their sum over the 1-process seconds is what running beside MPI costs the work.
     print("| scene | 1 process s | %d ranks s | speed-up | pieces/s | balance | busy per rank s | same image |" % a.ranks)
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as work:
         for scene in scenes:
-            one, many, pieces, balance, busy = [], [], [], [], []
+            one, many, pieces, balance, busy, traffic = [], [], [], [], [], []
             same = True
             for _ in range(a.runs):
                 s1 = render([], scene, args, os.path.join(work, "one.exr"), os.path.join(work, "one.json"))
@@ -60,11 +68,18 @@ def main():
                 pieces.append(sum(sn["tiles_per_rank"]) / sn["seconds"]["render"])
                 balance.append(sn["balance"])
                 busy.append(sn["busy_seconds_per_rank"])
+                if a.data_parallel:
+                    traffic.append((sum(sn["rays_asked_per_rank"]), sum(sn["bytes_sent_per_rank"]),
+                                    sn["exchange_seconds_per_rank"]))
             m1, mn = statistics.median(one), statistics.median(many)
             busyMedian = [statistics.median(b[r] for b in busy) for r in range(a.ranks)]
             print("| %s | %.3f | %.3f | **%.2f** | %.0f | %.3f | %s | %s |" % (
                 os.path.splitext(os.path.basename(scene))[0], m1, mn, m1 / mn, statistics.median(pieces),
                 statistics.median(balance), " / ".join("%.2f" % b for b in busyMedian), "yes" if same else "NO"))
+            if traffic:
+                t = traffic[len(traffic) // 2]
+                print("  data-parallel: %d rays asked of every rank, %.1f MiB sent per frame, exchange seconds per rank %s"
+                      % (t[0], t[1] / 2**20, " / ".join("%.2f" % x for x in t[2])))
             print("  runs: 1 process %s; %d ranks %s" % (", ".join("%.3f" % x for x in one), a.ranks,
                                                        ", ".join("%.3f" % x for x in many)), file=sys.stderr)
 

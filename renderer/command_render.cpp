@@ -170,7 +170,8 @@ std::string rankFigures(const RankFigures* f) {
       for (size_t r = 0; r < v.size(); ++r) s += (r ? ", " : "") + jsonNumber(v[r]);
       return "[" + s + "]";
     };
-    dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"bytes_sent_per_rank\": " +
+    dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"rays_sent_per_rank\": " +
+                   list(f->raysSent) + ",\n  \"bytes_sent_per_rank\": " +
                    list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) + ",\n";
   }
   return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +

@@ -438,7 +438,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     if (doneRanks == size - 1) outbox.drain();
     result.counters = workers.join();
     result.seconds = since(start);
-    if (figures) *figures = {piecesOf, busyOf, {}, {}, {}};
+    if (figures) *figures = {piecesOf, busyOf, {}, {}, {}, {}};
     if (doneRanks == size - 1) {
       RayCounters total;
       sendCounters(result.counters, total, 0);
@@ -502,39 +502,88 @@ static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<
               "rays and hits go between ranks as bytes (every rank runs the same binary)");
 
 // The ranks of a data-parallel render answering each other's rays. Every call is collective:
-// all ranks call it together, each with its own rays (maybe none).
+// all ranks call it together, each with its own rays (maybe none). A rank traces its own rays
+// whole (meshes, which every rank holds, and its part of the volumes) and sends each to the
+// other ranks whose volume part the ray's segment passes through, which trace it against their
+// iso-surfaces only (World::kVolumeMask) and send back what they found (hits only).
 class RankTracer {
  public:
   RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
-      : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_counts(static_cast<size_t>(ranks)), m_offsets(static_cast<size_t>(ranks)) {}
+      : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_cell(world.largestCell()),
+        m_lower(size_t(ranks)), m_upper(size_t(ranks)) {
+    // Every rank's volume box, on every rank.
+    Vec3d lo, hi;
+    world.volumeBounds(lo, hi);
+    double mine[6] = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};
+    std::vector<double> all(static_cast<size_t>(6 * ranks));
+    MPI_Allgather(mine, 6, MPI_DOUBLE, all.data(), 6, MPI_DOUBLE, MPI_COMM_WORLD);
+    for (int r = 0; r < ranks; ++r) {
+      const double* b = &all[size_t(6 * r)];
+      m_lower[size_t(r)] = {b[0], b[1], b[2]};
+      m_upper[size_t(r)] = {b[3], b[4], b[5]};
+    }
+  }
 
-  // The closest hit of each of `rays` over all ranks' parts of the scene.
+  // The closest hit of each of `rays` over all ranks' parts of the scene. This rank traces its
+  // rays first; the others need only look before the hit it found. Their walks must cut the
+  // ray's cells where the single process cuts them (at the ray's end), or a hit's bits could
+  // change: so the ray they get ends two cell diagonals past this rank's hit, where no cell of a
+  // closer hit reaches, and they hold no brick the shortened ray does not reach either way.
   void intersect(const std::vector<Ray>& rays, std::vector<Hit>& hits, std::vector<char>& found, TraversalStats& stats) {
-    gather(rays);
-    std::vector<Answer> answers(m_all.size());
-    trace(stats, [&](size_t i, TraversalStats& s) { answers[i].found = m_world.intersect(m_all[i], answers[i].hit, s); });
-    const std::vector<Answer> back = scatter(answers);
     hits.assign(rays.size(), Hit());
     found.assign(rays.size(), 0);
-    for (int from = 0; from < m_ranks; ++from)  // ranks in order: the lower one wins a tie
-      for (size_t i = 0; i < rays.size(); ++i) {
-        const Answer& a = back[size_t(from) * rays.size() + i];
-        if (a.found && (!found[i] || a.hit.t < hits[i].t)) {
+    traceMine(rays, stats, [&](size_t i, TraversalStats& s) { found[i] = m_world.intersect(rays[i], hits[i], s) ? 1 : 0; });
+    std::vector<Ray> ask = rays;
+    for (size_t i = 0; i < rays.size(); ++i)
+      if (found[i]) {
+        const float reach = float(2 * m_cell / double(length(rays[i].dir)));
+        ask[i].tfar = std::min(rays[i].tfar, std::nextafter(hits[i].t + reach, INFINITY) * (1 + 1e-6f));
+      }
+    exchange(ask, nullptr);
+    std::vector<Found> answers(m_theirs.size());
+    traceTheirs(stats, [&](size_t k, TraversalStats& s) {
+            Ray r = m_theirs[k];
+            r.mask = World::kVolumeMask;
+            answers[k].found = m_world.intersect(r, answers[k].hit, s) ? 1 : 0;
+    });
+    // Back to the rank that asked: the hits found, with the index of the ray in its batch.
+    std::vector<std::vector<Found>> back(static_cast<size_t>(m_ranks));
+    for (size_t k = 0; k < answers.size(); ++k)
+      if (answers[k].found) {
+        answers[k].index = m_theirIndex[k];
+        back[size_t(m_theirRank[k])].push_back(answers[k]);
+      }
+    const std::vector<std::vector<Found>> got = sendAll(back);
+    // The closest; of equal ones the lowest rank's (this rank's own answer is in rank order too).
+    std::vector<int> from(rays.size(), m_rank);
+    for (int q = 0; q < m_ranks; ++q)
+      for (const Found& a : got[size_t(q)]) {
+        const size_t i = size_t(a.index);
+        if (!found[i] || a.hit.t < hits[i].t || (a.hit.t == hits[i].t && q < from[i])) {
           hits[i] = a.hit;
           found[i] = 1;
+          from[i] = q;
         }
       }
   }
 
-  // Whether each of `rays` is blocked on some rank.
+  // Whether each of `rays` is blocked on some rank: this rank first, the others only for the
+  // rays it finds free.
   void occluded(const std::vector<Ray>& rays, std::vector<char>& blocked, TraversalStats& stats) {
-    gather(rays);
-    std::vector<char> answers(m_all.size());
-    trace(stats, [&](size_t i, TraversalStats& s) { answers[i] = m_world.occluded(m_all[i], s) ? 1 : 0; });
-    const std::vector<char> back = scatter(answers);
     blocked.assign(rays.size(), 0);
-    for (int from = 0; from < m_ranks; ++from)
-      for (size_t i = 0; i < rays.size(); ++i) blocked[i] = blocked[i] || back[size_t(from) * rays.size() + i];
+    traceMine(rays, stats, [&](size_t i, TraversalStats& s) { blocked[i] = m_world.occluded(rays[i], s) ? 1 : 0; });
+    exchange(rays, &blocked);
+    std::vector<char> answers(m_theirs.size());
+    traceTheirs(stats, [&](size_t k, TraversalStats& s) {
+      Ray r = m_theirs[k];
+      r.mask = World::kVolumeMask;
+      answers[k] = m_world.occluded(r, s) ? 1 : 0;
+    });
+    std::vector<std::vector<int>> back(static_cast<size_t>(m_ranks));
+    for (size_t k = 0; k < answers.size(); ++k)
+      if (answers[k]) back[size_t(m_theirRank[k])].push_back(m_theirIndex[k]);
+    for (const std::vector<int>& indices : sendAll(back))
+      for (int i : indices) blocked[size_t(i)] = 1;
   }
 
   // Whether any rank says yes (collective).
@@ -546,77 +595,124 @@ class RankTracer {
     return all != 0;
   }
 
-  // Rays of this rank's paths, bytes it sent, seconds it spent in the exchanges (sending, and
-  // waiting for the slowest rank).
-  double raysAsked = 0, bytesSent = 0, waitSeconds = 0;
+  // Rays of this rank's paths, their copies sent to other ranks, bytes this rank sent, seconds
+  // it spent in the exchanges (sending, and waiting for the slowest rank).
+  double raysAsked = 0, raysSent = 0, bytesSent = 0, waitSeconds = 0;
 
  private:
-  struct Answer {
+  struct Found {
     Hit hit;
+    int index = 0;  // of the ray in the asking rank's batch
     int found = 0;
   };
+  // A ray sent to another rank, with its index in this rank's batch.
+  struct Asked {
+    Ray ray;
+    int index;
+  };
 
-  // Every rank's rays on every rank, rank by rank.
-  void gather(const std::vector<Ray>& mine) {
-    const int n = int(mine.size());
-    const auto t0 = Clock::now();
-    MPI_Allgather(&n, 1, MPI_INT, m_counts.data(), 1, MPI_INT, MPI_COMM_WORLD);
-    size_t total = 0;
-    for (int r = 0; r < m_ranks; ++r) {
-      m_offsets[size_t(r)] = int(total);
-      total += size_t(m_counts[size_t(r)]);
+  // Whether the segment of `r` passes through rank q's volume box (padded for rounding).
+  bool reaches(const Ray& r, int q) const {
+    const Vec3d lo = m_lower[size_t(q)], hi = m_upper[size_t(q)];
+    if (!(lo.x <= hi.x)) return false;
+    const Vec3d o = r.origin(), d(r.dir);
+    double t0 = r.tnear, t1 = r.tfar;
+    for (int a = 0; a < 3; ++a) {
+      const double pad = 1e-6 * (std::fabs(lo[a]) + std::fabs(hi[a]) + (hi[a] - lo[a])) + 1e-9;
+      const double l = lo[a] - pad, h = hi[a] + pad;
+      if (d[a] == 0) {
+        if (o[a] < l || o[a] > h) return false;
+        continue;
+      }
+      double ta = (l - o[a]) / d[a], tb = (h - o[a]) / d[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
     }
-    m_all.resize(total);
-    std::vector<int> bytes(static_cast<size_t>(m_ranks)), at(static_cast<size_t>(m_ranks));
-    for (int r = 0; r < m_ranks; ++r) {
-      bytes[size_t(r)] = m_counts[size_t(r)] * int(sizeof(Ray));
-      at[size_t(r)] = m_offsets[size_t(r)] * int(sizeof(Ray));
-    }
-    MPI_Allgatherv(mine.data(), n * int(sizeof(Ray)), MPI_BYTE, m_all.data(), bytes.data(), at.data(), MPI_BYTE,
-                   MPI_COMM_WORLD);
-    waitSeconds += since(t0);
-    raysAsked += n;
-    bytesSent += double(n) * sizeof(Ray) * (m_ranks - 1);
+    return t0 <= t1 * (1 + 1e-6) + 1e-9;
   }
 
-  // answer(i, stats) for every gathered ray, on this rank's threads.
+  // Each of `rays` (but those `skip` says) to the other ranks it reaches; the rays other ranks
+  // sent here into m_theirs.
+  void exchange(const std::vector<Ray>& rays, const std::vector<char>* skip) {
+    std::vector<std::vector<Asked>> out(static_cast<size_t>(m_ranks));
+    for (size_t i = 0; i < rays.size(); ++i)
+      for (int q = 0; q < m_ranks; ++q)
+        if (q != m_rank && !(skip && (*skip)[i]) && reaches(rays[i], q)) out[size_t(q)].push_back({rays[i], int(i)});
+    raysAsked += double(rays.size());
+    for (int q = 0; q < m_ranks; ++q) raysSent += double(out[size_t(q)].size());
+    const std::vector<std::vector<Asked>> in = sendAll(out);
+    m_theirs.clear();
+    m_theirIndex.clear();
+    m_theirRank.clear();
+    for (int q = 0; q < m_ranks; ++q)
+      for (const Asked& a : in[size_t(q)]) {
+        m_theirs.push_back(a.ray);
+        m_theirIndex.push_back(a.index);
+        m_theirRank.push_back(q);
+      }
+  }
+
+  // answer(i, stats) for i in [0, n), on this rank's threads.
   template <typename F>
-  void trace(TraversalStats& stats, F&& answer) {
+  void parallel(size_t n, TraversalStats& stats, F&& answer) {
     tbb::enumerable_thread_specific<TraversalStats> local;
     m_arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, m_all.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 16), [&](const tbb::blocked_range<size_t>& r) {
         TraversalStats& s = local.local();
         for (size_t i = r.begin(); i < r.end(); ++i) answer(i, s);
       });
     });
     for (const TraversalStats& s : local) stats.add(s);
   }
+  template <typename F>
+  void traceMine(const std::vector<Ray>& rays, TraversalStats& stats, F&& answer) {
+    parallel(rays.size(), stats, answer);
+  }
+  template <typename F>
+  void traceTheirs(TraversalStats& stats, F&& answer) {
+    parallel(m_theirs.size(), stats, answer);
+  }
 
-  // Each rank's answers back to it: this rank's rays' answers from every rank, rank by rank.
+  // out[q] to rank q, for every q (collective); what every rank sent here, by rank.
   template <typename T>
-  std::vector<T> scatter(const std::vector<T>& answers) {
-    const int mine = m_counts[size_t(m_rank)];
-    std::vector<T> back(size_t(mine) * size_t(m_ranks));
-    std::vector<int> sendBytes(static_cast<size_t>(m_ranks)), sendAt(static_cast<size_t>(m_ranks)), recvBytes(static_cast<size_t>(m_ranks)), recvAt(static_cast<size_t>(m_ranks));
-    for (int r = 0; r < m_ranks; ++r) {
-      sendBytes[size_t(r)] = m_counts[size_t(r)] * int(sizeof(T));
-      sendAt[size_t(r)] = m_offsets[size_t(r)] * int(sizeof(T));
-      recvBytes[size_t(r)] = mine * int(sizeof(T));
-      recvAt[size_t(r)] = r * mine * int(sizeof(T));
-    }
+  std::vector<std::vector<T>> sendAll(const std::vector<std::vector<T>>& out) {
     const auto t0 = Clock::now();
-    MPI_Alltoallv(answers.data(), sendBytes.data(), sendAt.data(), MPI_BYTE, back.data(), recvBytes.data(),
+    const size_t n = size_t(m_ranks);
+    std::vector<int> sendBytes(n), sendAt(n), recvBytes(n), recvAt(n);
+    std::vector<char> sendBuffer;
+    for (size_t q = 0; q < n; ++q) {
+      sendAt[q] = int(sendBuffer.size());
+      sendBytes[q] = int(out[q].size() * sizeof(T));
+      const char* p = reinterpret_cast<const char*>(out[q].data());
+      sendBuffer.insert(sendBuffer.end(), p, p + sendBytes[q]);
+      if (q != size_t(m_rank)) bytesSent += sendBytes[q];
+    }
+    MPI_Alltoall(sendBytes.data(), 1, MPI_INT, recvBytes.data(), 1, MPI_INT, MPI_COMM_WORLD);
+    int total = 0;
+    for (size_t q = 0; q < n; ++q) {
+      recvAt[q] = total;
+      total += recvBytes[q];
+    }
+    std::vector<char> recvBuffer(static_cast<size_t>(total));
+    MPI_Alltoallv(sendBuffer.data(), sendBytes.data(), sendAt.data(), MPI_BYTE, recvBuffer.data(), recvBytes.data(),
                   recvAt.data(), MPI_BYTE, MPI_COMM_WORLD);
+    std::vector<std::vector<T>> in(n);
+    for (size_t q = 0; q < n; ++q) {
+      in[q].resize(size_t(recvBytes[q]) / sizeof(T));
+      std::memcpy(static_cast<void*>(in[q].data()), recvBuffer.data() + recvAt[q], size_t(recvBytes[q]));
+    }
     waitSeconds += since(t0);
-    bytesSent += double(answers.size() - size_t(mine)) * sizeof(T);
-    return back;
+    return in;
   }
 
   const World& m_world;
   tbb::task_arena& m_arena;
   int m_rank, m_ranks;
-  std::vector<int> m_counts, m_offsets;
-  std::vector<Ray> m_all;
+  double m_cell;  // World::largestCell
+  std::vector<Vec3d> m_lower, m_upper;
+  std::vector<Ray> m_theirs;  // rays other ranks sent here, and where they came from
+  std::vector<int> m_theirIndex, m_theirRank;
 };
 
 }  // namespace
@@ -659,31 +755,45 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       });
     });
   };
-  const int rounds = (tiles.tiles() + ranks - 1) / ranks;
+  // Rank r's tiles are r, r + N, ...; a round takes several of them at once (8,192 paths in
+  // flight, 2.4 MiB), so that the exchanges, whose cost is mostly per stage, carry many rays each
+  // (2,048 paths: the exchanges took twice as long; 32,768: the paths left the caches, and the
+  // frame took as long; docs/BENCHMARKS.md, "Data-parallel rendering").
+  constexpr int kSamplesAtOnce = 16, kPathsPerRound = 8192;
+  const int tilesPerRound = std::max(1, kPathsPerRound / (TileRenderer::kTile * TileRenderer::kTile *
+                                                 std::min(options.spp, kSamplesAtOnce)));
+  const int perRank = (tiles.tiles() + ranks - 1) / ranks;
+  const int rounds = (perRank + tilesPerRound - 1) / tilesPerRound;
+  std::vector<std::pair<int, int>> pixels;  // the round's pixels (x, y), tile by tile
+  std::vector<size_t> pixelSums;            // and where each one's sums are
   bool stopped = false;
   for (int round = 0; round < rounds && !stopped; ++round) {
-    const int tile = round * ranks + rank;
-    const bool have = tile < tiles.tiles();
-    TileRenderer::Rect r{0, 0, 0, 0};
-    const size_t tileSums = sums.size();  // where this tile's sums begin
-    if (have) {
-      r = tiles.rect(tile);
+    pixels.clear();
+    pixelSums.clear();
+    for (int k = round * tilesPerRound; k < std::min(perRank, (round + 1) * tilesPerRound); ++k) {
+      const int tile = k * ranks + rank;
+      if (tile >= tiles.tiles()) break;
+      const TileRenderer::Rect r = tiles.rect(tile);
       mine.push_back(tile);
-      sums.resize(tileSums + size_t(r.pixels()));
+      for (int y = r.y0; y < r.y1; ++y)
+        for (int x = r.x0; x < r.x1; ++x) {
+          pixels.emplace_back(x, y);
+          pixelSums.push_back(sums.size());
+          sums.emplace_back();
+        }
     }
-    constexpr int kSamplesAtOnce = 16;
     for (int s0 = 0; s0 < options.spp; s0 += kSamplesAtOnce) {
       const int s1 = std::min(options.spp, s0 + kSamplesAtOnce), ns = s1 - s0;
-      paths.resize(size_t(r.pixels()) * size_t(ns));
-      for (int y = r.y0; y < r.y1; ++y)
-        for (int x = r.x0; x < r.x1; ++x)
-          for (int s = s0; s < s1; ++s) {
-            PathState& p = paths[(size_t(y - r.y0) * size_t(r.x1 - r.x0) + size_t(x - r.x0)) * size_t(ns) + size_t(s - s0)];
-            Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
-            const float jx = sampler.next(), jy = sampler.next();
-            p.begin(camera.generateRay(x + jx, y + jy), sampler);
-            integrator.start(p);
-          }
+      paths.resize(pixels.size() * size_t(ns));
+      for (size_t pixel = 0; pixel < pixels.size(); ++pixel)
+        for (int s = s0; s < s1; ++s) {
+          const auto [x, y] = pixels[pixel];
+          PathState& p = paths[pixel * size_t(ns) + size_t(s - s0)];
+          Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
+          const float jx = sampler.next(), jy = sampler.next();
+          p.begin(camera.generateRay(x + jx, y + jy), sampler);
+          integrator.start(p);
+        }
       // The wavefront flow's stages (TileRenderer::renderPassWavefront): camera rays, then shadow
       // rays and continuation rays until no path of any rank asks for one.
       bool cameraStage = true;
@@ -702,11 +812,11 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         if (!tracer.anyRank(more)) break;
       }
       // Each pixel's samples in sample order.
-      for (size_t pixel = 0; pixel < size_t(r.pixels()); ++pixel)
+      for (size_t pixel = 0; pixel < pixels.size(); ++pixel)
         for (int s = 0; s < ns; ++s) {
           PathState& p = paths[pixel * size_t(ns) + size_t(s)];
           integrator.finish(p);
-          addSample(sums[tileSums + pixel], p.out, options.alpha);
+          addSample(sums[pixelSums[pixel]], p.out, options.alpha);
         }
     }
     // A stop request (any rank's) ends the frame after this round: the image has the tiles done.
@@ -737,21 +847,24 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   MPI_Gatherv(sums.data(), sumBytes, MPI_BYTE, allSums.data(), byteCounts.data(), byteAt.data(), MPI_BYTE, 0,
               MPI_COMM_WORLD);
   result.seconds = since(start);
-  double asked[3] = {tracer.raysAsked, tracer.bytesSent, tracer.waitSeconds};
-  std::vector<double> allAsked(static_cast<size_t>(3 * ranks));
-  MPI_Gather(asked, 3, MPI_DOUBLE, allAsked.data(), 3, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  double asked[4] = {tracer.raysAsked, tracer.raysSent, tracer.bytesSent, tracer.waitSeconds};
+  std::vector<double> allAsked(static_cast<size_t>(4 * ranks));
+  MPI_Gather(asked, 4, MPI_DOUBLE, allAsked.data(), 4, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   if (rank != 0) return result;
   if (figures) {
     figures->tiles.assign(tileCounts.begin(), tileCounts.end());
     figures->raysAsked.clear();
+    figures->raysSent.clear();
     figures->bytesSent.clear();
     figures->busySeconds.clear();
     figures->waitSeconds.clear();
     for (int q = 0; q < ranks; ++q) {
-      figures->raysAsked.push_back(allAsked[size_t(3 * q)]);
-      figures->bytesSent.push_back(allAsked[size_t(3 * q + 1)]);
-      figures->waitSeconds.push_back(allAsked[size_t(3 * q + 2)]);
-      figures->busySeconds.push_back(std::max(0.0, result.seconds - allAsked[size_t(3 * q + 2)]));
+      const double* f = &allAsked[size_t(4 * q)];
+      figures->raysAsked.push_back(f[0]);
+      figures->raysSent.push_back(f[1]);
+      figures->bytesSent.push_back(f[2]);
+      figures->waitSeconds.push_back(f[3]);
+      figures->busySeconds.push_back(std::max(0.0, result.seconds - f[3]));
     }
   }
   std::vector<PixelSums> frame(size_t(w) * size_t(h));

@@ -55,9 +55,10 @@ class MpiJob {
 struct RankFigures {
   std::vector<int> tiles;
   std::vector<double> busySeconds;
-  // Data-parallel: per rank, the rays of its paths (answered by every rank), the bytes it sent,
-  // and the seconds it spent in the exchanges (busySeconds: the rest of the frame's).
-  std::vector<double> raysAsked, bytesSent, waitSeconds;
+  // Data-parallel: per rank, the rays of its paths, their copies it sent to other ranks (those
+  // whose volume part a ray passes through), the bytes it sent (rays, and hits back), and the
+  // seconds it spent in the exchanges (busySeconds: the rest of the frame's).
+  std::vector<double> raysAsked, raysSent, bytesSent, waitSeconds;
 };
 
 // One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image

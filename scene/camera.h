@@ -20,6 +20,9 @@ struct Ray {
   int fromSurface = -1;
   bool fromInside = false;
   bool fromCap = false;  // it leaves a cap of that surface (its origin is on the clip region's boundary)
+  // What the ray meets: every geometry, or only World::kVolumeMask (the iso-surfaces: a
+  // data-parallel rank answering another rank's ray, whose meshes that rank traces itself).
+  unsigned mask = ~0u;
 };
 
 class Camera {

@@ -14,6 +14,7 @@
 
 #include "volume/input_error.h"
 #include "volume/partition.h"
+#include "volume/procedural.h"
 
 namespace iso {
 namespace {
@@ -40,7 +41,7 @@ RTCRay toEmbree(const Ray& ray) {
   r.dir_x = ray.dir.x; r.dir_y = ray.dir.y; r.dir_z = ray.dir.z;
   r.tnear = ray.tnear;
   r.tfar = ray.tfar;
-  r.mask = 0xffffffff;
+  r.mask = ray.mask;
   return r;
 }
 
@@ -69,10 +70,14 @@ VolumeFile loadVolume(const VolumeDesc& desc) {
   } else {
     v = readVolumeFile(desc.file, desc.layout, desc.part);
   }
+  placeVolume(desc, v);
+  return v;
+}
+
+void placeVolume(const VolumeDesc& desc, VolumeFile& v) {
   if (desc.origin) v.grid.setOrigin(*desc.origin);
   if (desc.spacing) v.grid.setSpacing(*desc.spacing);
   v.toWorld = desc.transform * v.toWorld;
-  return v;
 }
 
 namespace {
@@ -151,6 +156,32 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
     release();
     throw;
   }
+}
+
+void World::volumeBounds(Vec3d& lower, Vec3d& upper) const {
+  lower = {INFINITY, INFINITY, INFINITY};
+  upper = -lower;
+  for (const SurfaceInfo& s : m_surfaces) {
+    const VolumeInfo& vol = m_volumes[size_t(s.volume)];
+    const Grid& g = *vol.grid;
+    const Vec3i first = g.windowFirst(), last = first + g.windowExtent() - Vec3i{1, 1, 1};
+    for (int c = 0; c < 8; ++c) {
+      const Vec3d corner{double(c & 1 ? last.x : first.x), double(c & 2 ? last.y : first.y), double(c & 4 ? last.z : first.z)};
+      const Vec3d p = vol.transform.point(g.origin() + corner * g.spacing());
+      lower = min(lower, p);
+      upper = max(upper, p);
+    }
+  }
+}
+
+double World::largestCell() const {
+  double largest = 0;
+  for (const SurfaceInfo& s : m_surfaces) {
+    const VolumeInfo& vol = m_volumes[size_t(s.volume)];
+    const Vec3d stretch = vol.transform.absRowSums();  // bounds how far the transform moves a unit step
+    largest = std::max(largest, length(vol.grid->spacing()) * std::max({stretch.x, stretch.y, stretch.z}));
+  }
+  return largest;
 }
 
 void World::setSceneBounds(const SceneDesc& scene, const Vec3d& lower, const Vec3d& upper) {
@@ -279,6 +310,7 @@ void clipFilter(const RTCFilterFunctionNArguments* args) {
 
 RTCGeometry World::triangleGeometry(const TriangleMesh& mesh, bool clipped) const {
   RTCGeometry geometry = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  rtcSetGeometryMask(geometry, kMeshMask);
   if (clipped) {
     rtcSetGeometryUserData(geometry, const_cast<ClipRegion*>(&m_sceneClip));
     rtcSetGeometryIntersectFilterFunction(geometry, clipFilter);
@@ -420,6 +452,7 @@ void World::loadMeshes(const SceneDesc& scene) {
         records.push_back(rec);
       }
       RTCGeometry instance = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
+      rtcSetGeometryMask(instance, kMeshMask);
       rtcSetGeometryInstancedScene(instance, shared[inst.mesh]);
       float xfm[12];
       toWorld.toColumnMajor(xfm);
@@ -459,21 +492,37 @@ void checkDataParallel(const SceneDesc& scene) {
 }
 
 namespace {
-// This rank's window of volume v (SceneDesc::dataPart): boxes of whole bricks balanced by the
-// bricks active for the volume's iso values, the same on every rank. (The whole volume is read
-// first: the balance needs every brick's range. Reading only the window, after a pass that
-// gathers the ranges, is what docs/distributed.md lists next.)
-Grid rankWindow(const SceneDesc& scene, size_t v, const Grid& whole) {
+// This rank's box of volume v (SceneDesc::dataPart) from the ranges of its bricks: boxes of
+// whole bricks balanced by the bricks active for the volume's iso values, the same on every rank.
+RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
   const VolumeDesc& desc = scene.volumes[v];
-  const std::string where = desc.where;
-  if (whole.sparse()) throw InputError(scene.path, where, "a sparse (OpenVDB) volume cannot be split over ranks yet (\"distribution\": \"data\")");
-  const BrickGrid bricks(whole);
   std::vector<double> weights(bricks.size(), 0.0);
   for (const IsoSurfaceDesc& iso : desc.isosurfaces)
     for (uint32_t b : bricks.activeBricks(float(iso.value))) weights[b] = 1;
-  const std::vector<RankBox> boxes = partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + where);
-  const RankBox& box = boxes[size_t(scene.dataPart.rank)];
-  return windowOf(whole, box.windowFirst(), box.windowExtent(whole.dims()));
+  return partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where)[size_t(scene.dataPart.rank)];
+}
+
+// This rank's window of volume v. A procedural field is evaluated twice, once for its bricks'
+// ranges (nothing kept) and once for the window: the rank never holds more than its window. A
+// file is read whole and the window cut from it (reading only the window's byte ranges needs
+// the ranges first: docs/distributed.md).
+VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
+  const VolumeDesc& desc = scene.volumes[v];
+  VolumeFile f;
+  if (desc.field && !desc.array) {
+    const Vec3i n = desc.resolution;
+    const RankBox box = rankBox(scene, v, proceduralBrickRanges(*desc.field, n));
+    f.grid = makeProceduralWindow(*desc.field, n, box.windowFirst(), box.windowExtent(n));
+    f.format = "procedural";
+    placeVolume(desc, f);
+    return f;
+  }
+  f = loadVolume(desc);
+  if (f.grid.sparse())
+    throw InputError(scene.path, desc.where, "a sparse (OpenVDB) volume cannot be split over ranks yet (\"distribution\": \"data\")");
+  const RankBox box = rankBox(scene, v, BrickGrid(f.grid));
+  f.grid = windowOf(f.grid, box.windowFirst(), box.windowExtent(f.grid.dims()));
+  return f;
 }
 }  // namespace
 
@@ -487,8 +536,8 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       info = sameVolumes->m_volumes[v];  // the grid and brick ranges are shared, not copied
     } else {
       info.name = desc.array ? "array" : desc.field ? "procedural" : desc.file;
-      VolumeFile file = loadVolume(desc);
-      if (scene.dataPart.ranks > 1 && !desc.isosurfaces.empty()) file.grid = rankWindow(scene, v, file.grid);
+      VolumeFile file =
+          scene.dataPart.ranks > 1 && !desc.isosurfaces.empty() ? loadRankVolume(scene, v) : loadVolume(desc);
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;
       info.toObject = info.transform.inverse();

@@ -105,6 +105,13 @@ class World {
   World(const World&) = delete;
   World& operator=(const World&) = delete;
 
+  // Geometry masks (Ray::mask): triangle meshes (and their instances), and the rest: iso-surfaces.
+  static constexpr unsigned kMeshMask = 1u, kVolumeMask = ~1u;
+  // The world-space box around the samples this World holds of the volumes with iso-surfaces (a
+  // data-parallel rank's windows: every hit on its iso-surfaces lies in it); none: lower > upper.
+  void volumeBounds(Vec3d& lower, Vec3d& upper) const;
+  // An upper bound on the world-space length of any cell's diagonal of those volumes (0: none).
+  double largestCell() const;
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const;
   bool occluded(const Ray& ray, TraversalStats& stats) const;
   // Up to kPacket rays traced together (Embree's 8-wide packets, rtcIntersect8 / rtcOccluded8):
@@ -269,6 +276,8 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov = 40);
 // then the scene's keys ("origin" and "spacing" replace the file's; "transform" comes after its
 // affine). The result's toWorld is the whole grid-space-to-world placement.
 VolumeFile loadVolume(const VolumeDesc& desc);
+// A volume's placement from its description (origin, spacing, transform), after loading.
+void placeVolume(const VolumeDesc& desc, VolumeFile& volume);
 // What a data-parallel render ("distribution": "data") cannot do yet, as an InputError naming the
 // place: queries the ranks would each answer for their own part only (colour by data, emissive or
 // clipped iso-surfaces, thin sheets' transmission, slices) and adaptive sampling.

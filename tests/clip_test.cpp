@@ -34,14 +34,20 @@ TEST(ClipRegion, ExtentIsWhereTheRayIsKept) {
     clip.extent(o, d, k0, k1, p0, p1);
     for (double t = -5; t <= 5; t += 0.01) {
       const bool inside = t > k0 + 1e-9 && t < k1 - 1e-9, outside = t < k0 - 1e-9 || t > k1 + 1e-9;
-      if (inside) EXPECT_TRUE(clip.keeps(o + d * t)) << trial << " t " << t;
-      if (outside) EXPECT_FALSE(clip.keeps(o + d * t)) << trial << " t " << t;
+      if (inside) {
+        EXPECT_TRUE(clip.keeps(o + d * t)) << trial << " t " << t;
+      }
+      if (outside) {
+        EXPECT_FALSE(clip.keeps(o + d * t)) << trial << " t " << t;
+      }
     }
     // The bounding planes pass through the extent's ends.
-    if (k0 <= k1 && p0 >= 0)
+    if (k0 <= k1 && p0 >= 0) {
       EXPECT_NEAR(dot(clip.planes()[size_t(p0)].normal, o + d * k0), clip.planes()[size_t(p0)].offset, 1e-12);
-    if (k0 <= k1 && p1 >= 0)
+    }
+    if (k0 <= k1 && p1 >= 0) {
       EXPECT_NEAR(dot(clip.planes()[size_t(p1)].normal, o + d * k1), clip.planes()[size_t(p1)].offset, 1e-12);
+    }
   }
 }
 

@@ -15,6 +15,7 @@
 #include "volume/input_error.h"
 #include "volume/loaders.h"
 #include "volume/partition.h"
+#include "volume/procedural.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -56,6 +57,30 @@ TEST(DataParallel, WindowsReadOnlyTheirSamplesAndEqualTheWholeVolume) {
         EXPECT_TRUE(window.origin() == whole.origin());
         EXPECT_TRUE(window.spacing() == whole.spacing());
       }
+    }
+  }
+}
+
+// A procedural field's rank makes only its window, after a pass over the field that keeps only
+// the bricks' ranges: both the same bits as from the whole grid.
+TEST(DataParallel, ProceduralWindowsAndRangesEqualTheWholeFields) {
+  for (Field field : {Field::GyroidBall, Field::MarschnerLobb}) {
+    const Vec3i n{41, 34, 27};  // bricks cut short on every axis
+    const Grid whole = makeProceduralGrid(field, n);
+    const BrickGrid bricks(whole), streamed = proceduralBrickRanges(field, n);
+    ASSERT_EQ(streamed.size(), bricks.size());
+    for (uint32_t b = 0; b < bricks.size(); ++b) {
+      EXPECT_EQ(streamed.brickMin(b), bricks.brickMin(b)) << "brick " << b;
+      EXPECT_EQ(streamed.brickMax(b), bricks.brickMax(b)) << "brick " << b;
+    }
+    EXPECT_EQ(streamed.minValue(), bricks.minValue());
+    EXPECT_EQ(streamed.maxValue(), bricks.maxValue());
+    for (const RankBox& box : boxesOf(whole, 0.f, 3)) {
+      const SampleWindow w{box.windowFirst(), box.windowExtent(n)};
+      const Grid window = makeProceduralWindow(field, n, w.first, w.extent);
+      expectWindowOf(whole, window, w);
+      EXPECT_TRUE(window.origin() == whole.origin());
+      EXPECT_TRUE(window.spacing() == whole.spacing());
     }
   }
 }

@@ -7,14 +7,45 @@
 
 namespace iso {
 
-BrickGrid::BrickGrid(const Grid& grid) {
-  const Vec3i d = grid.dims();
+BrickGrid::BrickGrid(Vec3i d) {
   m_cellDims = {d.x - 1, d.y - 1, d.z - 1};
   m_count = {(m_cellDims.x + kCells - 1) / kCells, (m_cellDims.y + kCells - 1) / kCells,
              (m_cellDims.z + kCells - 1) / kCells};
   const size_t n = size_t(m_count.x) * m_count.y * m_count.z;
   m_lo.assign(n, std::numeric_limits<float>::infinity());
   m_hi.assign(n, -std::numeric_limits<float>::infinity());
+}
+
+void BrickGrid::rangesOfRow(int bz, const float* samples, int count) {
+  const size_t nx = size_t(m_cellDims.x) + 1, layer = nx * (size_t(m_cellDims.y) + 1);
+  tbb::parallel_for(0, m_count.y, [&](int by) {
+    for (int bx = 0; bx < m_count.x; ++bx) {
+      const uint32_t b = uint32_t((size_t(bz) * m_count.y + by) * m_count.x + bx);
+      const Vec3i c0 = cellBegin(b), c1 = cellEnd(b);
+      float lo = m_lo[b], hi = m_hi[b];
+      for (int z = 0; z < count; ++z)
+        for (int y = c0.y; y <= c1.y; ++y) {
+          const float* row = samples + size_t(z) * layer + size_t(y) * nx + size_t(c0.x);
+          for (int x = 0; x <= c1.x - c0.x; ++x) {
+            lo = std::min(lo, row[x]);
+            hi = std::max(hi, row[x]);
+          }
+        }
+      m_lo[b] = lo;
+      m_hi[b] = hi;
+    }
+  });
+}
+
+void BrickGrid::finishRanges() {
+  if (m_lo.empty()) return;
+  m_min = *std::min_element(m_lo.begin(), m_lo.end());
+  m_max = *std::max_element(m_hi.begin(), m_hi.end());
+  if (m_min > m_max) m_min = m_max = 0;  // a window holding no whole brick
+}
+
+BrickGrid::BrickGrid(const Grid& grid) : BrickGrid(grid.dims()) {
+  const size_t n = m_lo.size();
   // Brick by brick over its own corner samples (a sample on a brick boundary is read by both
   // bricks): rows of up to 9 samples in the grid's own type, a tight loop the compiler keeps in
   // registers (one pass over the samples that scattered each into its bricks took 0.8 s for 512^3).
@@ -56,11 +87,7 @@ BrickGrid::BrickGrid(const Grid& grid) {
     });
   });
   }
-  if (n) {
-    m_min = *std::min_element(m_lo.begin(), m_lo.end());
-    m_max = *std::max_element(m_hi.begin(), m_hi.end());
-    if (m_min > m_max) m_min = m_max = 0;  // a window holding no whole brick
-  }
+  finishRanges();
 }
 
 Vec3i BrickGrid::cellBegin(uint32_t b) const {

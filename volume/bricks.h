@@ -4,6 +4,7 @@
 // bracket the iso value cannot contain a crossing and never becomes an Embree primitive.
 // Of a window of a grid (Grid::isWindow), a brick not wholly held has the empty range
 // (+inf, -inf): it is never active, so nothing reads its samples.
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -16,6 +17,20 @@ class BrickGrid {
   static constexpr int kCells = 8;  // cells per brick edge: 2 bytes of range per 512 cells
 
   explicit BrickGrid(const Grid& grid);
+  // The ranges of a grid of `dims` that is not held: `layers(z0, z1)` returns the samples of
+  // layers z0..z1 (whole layers, x fastest, as float), valid until its next call; it is asked for
+  // each row of bricks along z in turn (their shared layers twice). Every range is the one the
+  // grid's own constructor gives.
+  template <typename Layers>
+  static BrickGrid fromLayers(Vec3i dims, Layers&& layers) {
+    BrickGrid g(dims);
+    for (int bz = 0; bz < g.m_count.z; ++bz) {
+      const int z0 = bz * kCells, z1 = std::min(z0 + kCells, g.m_cellDims.z);
+      g.rangesOfRow(bz, layers(z0, z1), z1 - z0 + 1);
+    }
+    g.finishRanges();
+    return g;
+  }
 
   Vec3i count() const { return m_count; }
   size_t size() const { return m_lo.size(); }
@@ -38,6 +53,10 @@ class BrickGrid {
   float maxValue() const { return m_max; }
 
  private:
+  explicit BrickGrid(Vec3i dims);  // the bricks of a grid of `dims`, no ranges yet
+  // The ranges of the bricks of row bz (along z) from its `count` layers of samples.
+  void rangesOfRow(int bz, const float* samples, int count);
+  void finishRanges();  // the grid's value range from the bricks'
   Vec3i m_cellDims;
   Vec3i m_count;
   std::vector<float> m_lo, m_hi;

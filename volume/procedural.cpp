@@ -1,5 +1,9 @@
 #include "volume/procedural.h"
 
+#include <tbb/parallel_for.h>
+
+#include <memory>
+
 #include <cmath>
 
 namespace iso {
@@ -43,15 +47,41 @@ double evalField(Field field, const Vec3d& p) {
   return 0;
 }
 
+namespace {
+Vec3d spacingOf(Vec3i n) { return {2.0 / (n.x - 1), 2.0 / (n.y - 1), 2.0 / (n.z - 1)}; }
+
+// Samples [first, first + extent) into `out` (x fastest), layers in parallel.
+void sampleBox(Field field, Vec3i n, Vec3i first, Vec3i extent, float* out) {
+  const Vec3d s = spacingOf(n);
+  tbb::parallel_for(0, extent.z, [&](int k) {
+    const int z = first.z + k;
+    float* v = out + size_t(k) * size_t(extent.y) * size_t(extent.x);
+    for (int y = first.y; y < first.y + extent.y; ++y)
+      for (int x = first.x; x < first.x + extent.x; ++x)
+        *v++ = float(evalField(field, {-1 + x * s.x, -1 + y * s.y, -1 + z * s.z}));
+  });
+}
+}  // namespace
+
 Grid makeProceduralGrid(Field field, Vec3i n) {
   std::vector<float> v(size_t(n.x) * n.y * n.z);
-  const Vec3d spacing{2.0 / (n.x - 1), 2.0 / (n.y - 1), 2.0 / (n.z - 1)};
-  size_t i = 0;
-  for (int z = 0; z < n.z; ++z)
-    for (int y = 0; y < n.y; ++y)
-      for (int x = 0; x < n.x; ++x)
-        v[i++] = float(evalField(field, {-1 + x * spacing.x, -1 + y * spacing.y, -1 + z * spacing.z}));
-  return Grid(n, std::move(v), {-1, -1, -1}, spacing);
+  sampleBox(field, n, {0, 0, 0}, n, v.data());
+  return Grid(n, std::move(v), {-1, -1, -1}, spacingOf(n));
+}
+
+Grid makeProceduralWindow(Field field, Vec3i n, Vec3i first, Vec3i extent) {
+  std::shared_ptr<float[]> v(new float[size_t(extent.x) * extent.y * extent.z]);
+  sampleBox(field, n, first, extent, v.get());
+  return Grid(n, ScalarType::Float32, std::shared_ptr<const void>(v, v.get()), first, extent, {-1, -1, -1}, spacingOf(n));
+}
+
+BrickGrid proceduralBrickRanges(Field field, Vec3i n) {
+  std::vector<float> layers;
+  return BrickGrid::fromLayers(n, [&](int z0, int z1) -> const float* {
+    layers.resize(size_t(z1 - z0 + 1) * size_t(n.x) * size_t(n.y));
+    sampleBox(field, n, {0, 0, z0}, {n.x, n.y, z1 - z0 + 1}, layers.data());
+    return layers.data();
+  });
 }
 
 }  // namespace iso
