@@ -85,6 +85,45 @@ TEST(DataParallel, ProceduralWindowsAndRangesEqualTheWholeFields) {
   }
 }
 
+// A plain raw file's ranks read its bricks' ranges a row at a time, then only their window: the
+// ranges are the whole grid's, and a rank's World holds its window alone.
+TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
+  const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
+  const Grid whole = readVolumeFile(path).grid;
+  const BrickGrid bricks(whole);
+  const std::optional<BrickGrid> streamed = rawBrickRanges(path);
+  ASSERT_TRUE(streamed.has_value());
+  ASSERT_EQ(streamed->size(), bricks.size());
+  for (uint32_t b = 0; b < bricks.size(); ++b) {
+    EXPECT_EQ(streamed->brickMin(b), bricks.brickMin(b)) << "brick " << b;
+    EXPECT_EQ(streamed->brickMax(b), bricks.brickMax(b)) << "brick " << b;
+  }
+  // Other files are read whole (then cut).
+  EXPECT_FALSE(rawBrickRanges(test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz")).has_value());
+  EXPECT_FALSE(rawBrickRanges(test::dataPath("volumes/nucleon/nucleon.nrrd")).has_value());
+  // A file shorter than its name says: one error naming it.
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/short_16x16x16_uint8.raw", std::string(100, 'x'));
+  EXPECT_THROW(rawBrickRanges(dir + "/short_16x16x16_uint8.raw"), InputError);
+
+  SceneDesc scene = parseSceneText(R"({"volumes": [{"file": ")" + path + R"(", "isosurfaces": [{"value": 20}]}]})", "s.json");
+  IntersectorSpec spec;
+  size_t held = 0;
+  for (int rank = 0; rank < 3; ++rank) {
+    scene.dataPart = DataPart{rank, 3};
+    const World world(scene, spec);
+    const Grid& grid = *world.volumes()[0].grid;
+    EXPECT_TRUE(grid.isWindow());
+    EXPECT_TRUE(grid.dims() == whole.dims());
+    const RankBox box = boxesOf(whole, 20.f, 3)[size_t(rank)];
+    EXPECT_TRUE(grid.windowFirst() == box.windowFirst());
+    EXPECT_TRUE(grid.windowExtent() == box.windowExtent(whole.dims()));
+    EXPECT_LT(grid.bytes(), whole.bytes() / 2);
+    held += grid.bytes();
+  }
+  EXPECT_LT(held, whole.bytes() * 12 / 10);  // the seams' layers twice, little more
+}
+
 TEST(DataParallel, WindowsOutsideTheVolumeAreRefusedNamingTheFile) {
   const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
   for (const SampleWindow& w : {SampleWindow{{-1, 0, 0}, {10, 10, 10}}, SampleWindow{{0, 0, 0}, {129, 10, 10}},

@@ -33,6 +33,7 @@ class BrickGrid {
   }
 
   Vec3i count() const { return m_count; }
+  Vec3i dims() const { return {m_cellDims.x + 1, m_cellDims.y + 1, m_cellDims.z + 1}; }  // the grid's samples
   size_t size() const { return m_lo.size(); }
   // The cell range [begin, end) of brick b.
   Vec3i cellBegin(uint32_t b) const;

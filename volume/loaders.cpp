@@ -915,6 +915,18 @@ Grid loadRawWindow(const std::string& path, std::ifstream& in, bool gzip, const 
   return Grid(dims, type, std::shared_ptr<const void>(samples, dst), w.first, w.extent);
 }
 
+// A raw file's dims and type: its layout's, else its Open SciVis name's; checked.
+void rawLayoutOf(const std::string& path, const RawLayout& layout, Vec3i& dims, ScalarType& type) {
+  const bool named = parseSciVisName(path, dims, type);
+  if (layout.dims) dims = *layout.dims;
+  if (layout.type) type = *layout.type;
+  if (!layout.dims && !named)
+    throw InputError(path, "", "raw volume needs \"dims\" and \"type\" (or an Open SciVis name like name_64x64x64_uint8.raw)");
+  if (!layout.type && !named)
+    throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
+  checkDims(dims, path, "");
+}
+
 Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindow* window) {
   const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
@@ -1024,6 +1036,50 @@ bool parseSciVisName(const std::string& path, Vec3i& dims, ScalarType& type) {
 const char* volumeExtensions() {
   return ".raw, .bin, .dat (each also .gz), .nrrd, .nhdr, .mhd, .mha, .vtk, .nii, .nii.gz, .hdr, .dcm, .dicom, "
          ".vdb, or a folder of DICOM slices";
+}
+
+std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout) {
+  const std::string name = lower(fs::path(path).filename().string());
+  if (!endsWith(name, ".raw") && !endsWith(name, ".bin") && !endsWith(name, ".dat")) return std::nullopt;
+  if (checkInputFile(path, "file").stream) return std::nullopt;
+  Vec3i dims;
+  ScalarType type;
+  rawLayoutOf(path, layout, dims, type);
+  const size_t expected = checkedBytes(dims, type, path);
+  size_t fileSize;
+  std::ifstream in = openFile(path, fileSize);
+  char magic[2] = {0, 0};
+  in.read(magic, 2);
+  if (in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b) return std::nullopt;  // gzip
+  if (fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  const size_t size = scalarTypeSize(type), layer = size_t(dims.x) * size_t(dims.y);
+  std::vector<uint8_t> bytes;
+  std::vector<float> values;
+  return BrickGrid::fromLayers(dims, [&](int z0, int z1) -> const float* {
+    const size_t count = size_t(z1 - z0 + 1) * layer;
+    bytes.resize(count * size);
+    values.resize(count);
+    in.seekg(std::streamoff(size_t(z0) * layer * size));
+    readExactly(in, bytes.data(), bytes.size(), path);
+    auto convert = [&](auto sample) {
+      using T = decltype(sample);
+      for (size_t i = 0; i < count; ++i) {
+        uint8_t b[sizeof(T)];
+        std::memcpy(b, bytes.data() + i * sizeof(T), sizeof(T));
+        if (layout.bigEndian) std::reverse(b, b + sizeof(T));
+        T v;
+        std::memcpy(&v, b, sizeof(T));
+        values[i] = float(v);
+      }
+    };
+    switch (type) {
+      case ScalarType::UInt8: convert(uint8_t()); break;
+      case ScalarType::UInt16: convert(uint16_t()); break;
+      case ScalarType::Int16: convert(int16_t()); break;
+      case ScalarType::Float32: convert(float()); break;
+    }
+    return values.data();
+  });
 }
 
 void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& file) {

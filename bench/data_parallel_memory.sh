@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# bench/data_parallel_memory.sh [N] [RANKS]: what a data-parallel render saves in memory. An
+# N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) rendered by one process and by
+# RANKS ranks with --data-parallel (mpirun, oversubscribed if the machine has fewer cores); prints
+# each process's peak resident memory (GNU time), the process's own base (the same render of an
+# 8^3 volume), each rank's share of the single process's peak beyond that base, and whether the
+# images are the same bits. Defaults: N 1024, RANKS 4 (minutes, ~6 GiB of memory at the peak).
+# ISOTRACE=path runs another build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+n=${1:-1024}
+ranks=${2:-4}
+[[ "$n" =~ ^[0-9]+$ && "$ranks" =~ ^[0-9]+$ && "$n" -ge 16 && "$ranks" -ge 2 ]] ||
+  { echo "data_parallel_memory: expected N >= 16 and RANKS >= 2" >&2; exit 2; }
+isotrace=${ISOTRACE:-build/isotrace}
+[ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+scene() {  # RESOLUTION
+  cat <<JSON
+{ "film": { "width": 96, "height": 72 }, "integrator": { "type": "path", "spp": 2, "max_depth": 3 },
+  "volumes": [ { "procedural": { "field": "gyroid_ball", "resolution": [$1, $1, $1] },
+                 "isosurfaces": [ { "value": 0, "inside": "below", "material": "red" } ] } ],
+  "materials": { "red": { "type": "diffuse", "color": [0.8, 0.3, 0.2] } },
+  "lights": [ { "type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5 },
+              { "type": "environment", "radiance": 0.3 } ] }
+JSON
+}
+scene "$n" > "$work/big.json"
+scene 8 > "$work/small.json"
+peak() { sed -n 's/^peak_kib=//p' "$1" | sort -n | tail -n "${2:-1}"; }
+/usr/bin/time -f "peak_kib=%M" "$isotrace" render "$work/small.json" --quiet -o "$work/small.exr" > /dev/null 2> "$work/base.txt"
+/usr/bin/time -f "peak_kib=%M" "$isotrace" render "$work/big.json" --quiet --threads 2 -o "$work/one.exr" > /dev/null 2> "$work/one.txt"
+mpirun --allow-run-as-root --oversubscribe -np "$ranks" /usr/bin/time -f "peak_kib=%M" "$isotrace" render "$work/big.json" \
+  --data-parallel --quiet --threads 1 -o "$work/many.exr" --stats "$work/many.json" > /dev/null 2> "$work/many.txt"
+base=$(peak "$work/base.txt")
+one=$(peak "$work/one.txt")
+same=no
+oiiotool --fail 0 --failpercent 0 "$work/one.exr" "$work/many.exr" --diff > /dev/null 2>&1 && same=yes
+echo "volume ${n}^3 float32 ($(( n * n * n * 4 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
+echo "| process | peak | beyond the base | share of one process's beyond the base |"
+echo "|---|---|---|---|"
+echo "| base (8^3 volume) | $(( base / 1024 )) | | |"
+echo "| one process | $(( one / 1024 )) | $(( (one - base) / 1024 )) | 1 |"
+
+for p in $(sed -n 's/^peak_kib=//p' "$work/many.txt"); do
+  echo "| a rank | $(( p / 1024 )) | $(( (p - base) / 1024 )) | $(awk -v p="$p" -v b="$base" -v o="$one" 'BEGIN { printf "%.3f", (p - b) / (o - b) }') |"
+
+done
+echo "same image bits: $same"
