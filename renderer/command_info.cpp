@@ -40,8 +40,9 @@ const char* lightKindName(Light::Kind k) {
 // rank's box of whole bricks, balanced by the bricks active for the volume's iso-surfaces, and
 // what the rank would hold of it.
 void printPartition(const World& world, const std::string& path, int ranks) {
-  std::printf("  data-parallel over %d ranks: each would load only its box of each volume (meshes, lights and the "
-              "camera on every rank)\n", ranks);
+  std::printf("  data-parallel over %d ranks (render --data-parallel): each holds only its box of each volume "
+              "(raw files and procedural fields are read only for it, other formats whole, then cut); meshes, lights "
+              "and the camera on every rank\n", ranks);
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
