@@ -755,40 +755,35 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       });
     });
   };
-  // Rank r's tiles are r, r + N, ...; a round takes several of them at once (8,192 paths in
-  // flight, 2.4 MiB), so that the exchanges, whose cost is mostly per stage, carry many rays each
-  // (2,048 paths: the exchanges took twice as long; 32,768: the paths left the caches, and the
-  // frame took as long; docs/BENCHMARKS.md, "Data-parallel rendering").
-  constexpr int kSamplesAtOnce = 16, kPathsPerRound = 8192;
-  const int tilesPerRound = std::max(1, kPathsPerRound / (TileRenderer::kTile * TileRenderer::kTile *
-                                                 std::min(options.spp, kSamplesAtOnce)));
-  const int perRank = (tiles.tiles() + ranks - 1) / ranks;
-  const int rounds = (perRank + tilesPerRound - 1) / tilesPerRound;
-  std::vector<std::pair<int, int>> pixels;  // the round's pixels (x, y), tile by tile
-  std::vector<size_t> pixelSums;            // and where each one's sums are
-  bool stopped = false;
-  for (int round = 0; round < rounds && !stopped; ++round) {
-    pixels.clear();
-    pixelSums.clear();
-    for (int k = round * tilesPerRound; k < std::min(perRank, (round + 1) * tilesPerRound); ++k) {
-      const int tile = k * ranks + rank;
-      if (tile >= tiles.tiles()) break;
-      const TileRenderer::Rect r = tiles.rect(tile);
-      mine.push_back(tile);
-      for (int y = r.y0; y < r.y1; ++y)
-        for (int x = r.x0; x < r.x1; ++x) {
-          pixels.emplace_back(x, y);
-          pixelSums.push_back(sums.size());
-          sums.emplace_back();
-        }
-    }
-    for (int s0 = 0; s0 < options.spp; s0 += kSamplesAtOnce) {
-      const int s1 = std::min(options.spp, s0 + kSamplesAtOnce), ns = s1 - s0;
-      paths.resize(pixels.size() * size_t(ns));
-      for (size_t pixel = 0; pixel < pixels.size(); ++pixel)
+  // Rank r's tiles are r, r + N, ... All of them take a pass of samples (1, 1, 2, 4, 8, 16, 16,
+  // ... as in one process) before any takes the next, so that a stop request, honoured after
+  // each pass (once the first is done), leaves every pixel sampled. A pass goes through the
+  // tiles in rounds of several at once (8,192 paths in flight, 2.4 MiB), so that the exchanges,
+  // whose cost is mostly per stage, carry many rays each (2,048 paths: the exchanges took twice
+  // as long; 32,768: the paths left the caches, and the frame took as long; docs/BENCHMARKS.md,
+  // "Data-parallel rendering").
+  constexpr int kPathsPerRound = 8192;
+  std::vector<std::pair<int, int>> pixels;  // this rank's pixels (x, y), tile by tile; sums alike
+  for (int tile = rank; tile < tiles.tiles(); tile += ranks) {
+    const TileRenderer::Rect r = tiles.rect(tile);
+    mine.push_back(tile);
+    for (int y = r.y0; y < r.y1; ++y)
+      for (int x = r.x0; x < r.x1; ++x) pixels.emplace_back(x, y);
+  }
+  sums.resize(pixels.size());
+  const size_t mostPixels = size_t((tiles.tiles() + ranks - 1) / ranks) * TileRenderer::kTile * TileRenderer::kTile;
+  for (int pass = 0, s0 = 0; s0 < options.spp; ++pass) {
+    const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp), ns = s1 - s0;
+    // Rounds of kPathsPerRound paths; as many on every rank (the busiest one's).
+    const size_t maxPixels = std::max<size_t>(1, size_t(kPathsPerRound) / size_t(ns));
+    const size_t rounds = (mostPixels + maxPixels - 1) / maxPixels;
+    for (size_t round = 0; round < rounds; ++round) {
+      const size_t p0 = std::min(pixels.size(), round * maxPixels), p1 = std::min(pixels.size(), p0 + maxPixels);
+      paths.resize((p1 - p0) * size_t(ns));
+      for (size_t pixel = p0; pixel < p1; ++pixel)
         for (int s = s0; s < s1; ++s) {
           const auto [x, y] = pixels[pixel];
-          PathState& p = paths[pixel * size_t(ns) + size_t(s - s0)];
+          PathState& p = paths[(pixel - p0) * size_t(ns) + size_t(s - s0)];
           Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
           const float jx = sampler.next(), jy = sampler.next();
           p.begin(camera.generateRay(x + jx, y + jy), sampler);
@@ -812,15 +807,15 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         if (!tracer.anyRank(more)) break;
       }
       // Each pixel's samples in sample order.
-      for (size_t pixel = 0; pixel < pixels.size(); ++pixel)
+      for (size_t pixel = p0; pixel < p1; ++pixel)
         for (int s = 0; s < ns; ++s) {
-          PathState& p = paths[pixel * size_t(ns) + size_t(s)];
+          PathState& p = paths[(pixel - p0) * size_t(ns) + size_t(s)];
           integrator.finish(p);
-          addSample(sums[pixelSums[pixel]], p.out, options.alpha);
+          addSample(sums[pixel], p.out, options.alpha);
         }
     }
-    // A stop request (any rank's) ends the frame after this round: the image has the tiles done.
-    stopped = tracer.anyRank(stopRequested());
+    s0 = s1;
+    if (tracer.anyRank(stopRequested())) break;  // any rank's request: every rank stops here
   }
 
   // Rank 0 gathers every rank's tiles.

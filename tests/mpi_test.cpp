@@ -269,5 +269,22 @@ TEST(Mpi, InterruptWritesThePartialImage) {
     EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
 }
 
+// The same with --data-parallel: the ranks stop together after a pass over all pixels.
+TEST(Mpi, DataParallelInterruptWritesThePartialImage) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  const std::string image = dir + "/t.exr";
+  test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --data-parallel --integrator path " +
+                    "--spp 1000000 --threads 1 -o " + image + " >/dev/null");
+  ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();
+  run.signal(SIGINT);
+  EXPECT_NE(run.wait(), 0) << "mpirun ends with an error status after a signal";
+  std::map<std::string, std::string> metadata;
+  const std::vector<float> pixels = readExr(image, nullptr, &metadata);
+  ASSERT_FALSE(pixels.empty()) << run.err();
+  EXPECT_EQ(metadata["isotrace:interrupted"], "1");
+  EXPECT_GE(std::stoi(metadata["isotrace:spp"]), 1) << "every pixel has samples";
+}
+
 }  // namespace
 }  // namespace iso
