@@ -64,6 +64,9 @@ class SurfaceChecker {
     m_hi = {double(d.x - 1), double(d.y - 1), double(d.z - 1)};
   }
 
+  // WatertightOptions::ranks: the parts' Worlds answer instead of the whole one.
+  void setParts(std::vector<const World*> parts) { m_parts = std::move(parts); }
+
   Vec3d toGrid(const Vec3d& world) const {
     return (m_toGrid.point(world) - m_grid.origin()) / m_grid.spacing();
   }
@@ -277,26 +280,45 @@ class SurfaceChecker {
   }
 
  private:
-  // The renderer's queries in the chosen ray flow (WatertightOptions::rayFlow).
+  // The renderer's queries in the chosen ray flow (WatertightOptions::rayFlow), of the whole
+  // World or of its parts.
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
-    if (m_flow == RayFlow::Scalar) return m_world.intersect(ray, hit, stats);
+    if (m_parts.empty()) return intersectIn(m_world, ray, hit, stats);
+    bool found = false;
+    for (const World* part : m_parts) {
+      Hit h;
+      if (intersectIn(*part, ray, h, stats) && (!found || h.t < hit.t)) {
+        hit = h;
+        found = true;
+      }
+    }
+    return found;
+  }
+  bool occluded(const Ray& ray, TraversalStats& stats) const {
+    if (m_parts.empty()) return occludedIn(m_world, ray, stats);
+    for (const World* part : m_parts)
+      if (occludedIn(*part, ray, stats)) return true;
+    return false;
+  }
+  bool intersectIn(const World& world, const Ray& ray, Hit& hit, TraversalStats& stats) const {
+    if (m_flow == RayFlow::Scalar) return world.intersect(ray, hit, stats);
     Ray rays[World::kPacket];
     Hit hits[World::kPacket];
     bool found[World::kPacket];
     std::fill(std::begin(rays), std::end(rays), ray);
     TraversalStats lanes;
-    m_world.intersectPacket(rays, World::kPacket, hits, found, lanes);
+    world.intersectPacket(rays, World::kPacket, hits, found, lanes);
     addOneLane(stats, lanes);
     hit = hits[0];
     return found[0];
   }
-  bool occluded(const Ray& ray, TraversalStats& stats) const {
-    if (m_flow == RayFlow::Scalar) return m_world.occluded(ray, stats);
+  bool occludedIn(const World& world, const Ray& ray, TraversalStats& stats) const {
+    if (m_flow == RayFlow::Scalar) return world.occluded(ray, stats);
     Ray rays[World::kPacket];
     bool blocked[World::kPacket];
     std::fill(std::begin(rays), std::end(rays), ray);
     TraversalStats lanes;
-    m_world.occludedPacket(rays, World::kPacket, blocked, lanes);
+    world.occludedPacket(rays, World::kPacket, blocked, lanes);
     addOneLane(stats, lanes);
     return blocked[0];
   }
@@ -308,6 +330,7 @@ class SurfaceChecker {
   }
 
   const World& m_world;
+  std::vector<const World*> m_parts;
   RayFlow m_flow;
   const Grid& m_grid;
   Transform m_toWorld, m_toGrid;
@@ -324,8 +347,9 @@ struct AloneSurface {
   VolumeDesc desc;
   std::unique_ptr<World> world;
   std::unique_ptr<SurfaceChecker> checker;
+  std::vector<std::unique_ptr<World>> parts;  // WatertightOptions::ranks
   AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset,
-               RayFlow flow) {
+               RayFlow flow, int ranks) {
     SceneDesc alone;
     alone.path = scene.path;
     desc = scene.volumes[v];
@@ -340,6 +364,15 @@ struct AloneSurface {
     world = std::make_unique<World>(alone, intersector);
     // Grid space to world as the World places it: a file's own affine (NIfTI), then the scene's.
     checker = std::make_unique<SurfaceChecker>(*world, world->volumes()[0].transform, desc.isosurfaces[0].value, flow);
+    if (ranks > 1) {
+      std::vector<const World*> views;
+      for (int r = 0; r < ranks; ++r) {
+        alone.dataPart = DataPart{r, ranks};
+        parts.push_back(std::make_unique<World>(alone, intersector));
+        views.push_back(parts.back().get());
+      }
+      checker->setParts(std::move(views));
+    }
   }
 };
 
@@ -351,7 +384,7 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   for (size_t v = 0; v < scene.volumes.size(); ++v)
     for (size_t k = 0; k < scene.volumes[v].isosurfaces.size(); ++k) {
-      const AloneSurface alone(scene, v, k, intersector, options.offset, options.rayFlow);
+      const AloneSurface alone(scene, v, k, intersector, options.offset, options.rayFlow, options.ranks);
       tbb::enumerable_thread_specific<WatertightCounts> counts;
       tbb::enumerable_thread_specific<std::vector<FailedRay>> failures;
       arena.execute([&] {
@@ -419,6 +452,7 @@ std::string hexList(const std::vector<double>& ts) {
 void writeFailures(const std::string& path, const FailureFile& file) {
   std::string text = "# isotrace watertight failures: intersector=" + file.intersector + " ray_flow=" + rayFlowName(file.rayFlow) + " seed=" + std::to_string(file.seed) +
                      " offset=" + hex(file.offset.x) + "," + hex(file.offset.y) + "," + hex(file.offset.z) +
+                     (file.ranks > 1 ? " ranks=" + std::to_string(file.ranks) : std::string()) +
                      " scene=" + file.scene + "\n";
   for (const FailedRay& r : file.rays)
     text += std::string(testName(r.test)) + " volume=" + std::to_string(r.volume) + " surface=" + std::to_string(r.surface) +
@@ -493,6 +527,10 @@ FailureFile readFailures(const std::string& path) {
         }
         else if (key == "seed") file.seed = integer(key, value, uint64_t(1) << 62);
         else if (key == "offset") file.offset = three(key, value);
+        else if (key == "ranks") {
+          file.ranks = int(integer(key, value, 64));
+          if (file.ranks < 1) fail("ranks: must be at least 1");
+        }
         else fail("unknown header field '" + key + "'");
       }
       header = true;
@@ -540,6 +578,11 @@ FailureFile readFailures(const std::string& path) {
 
 std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
                                       const std::vector<FailedRay>& rays) {
+  return replayFailures(scene, intersector, offset, flow, rays, 1);
+}
+
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
+                                      const std::vector<FailedRay>& rays, int ranks) {
   std::map<std::pair<int, int>, std::unique_ptr<AloneSurface>> surfaces;
   std::vector<FailedRay> out;
   for (const FailedRay& given : rays) {
@@ -548,7 +591,8 @@ std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorS
       throw InputError(scene.path, "", "the failure file names iso-surface " + std::to_string(given.surface) + " of volume " +
                                            std::to_string(given.volume) + ", which this scene does not have");
     auto& slot = surfaces[{given.volume, given.surface}];
-    if (!slot) slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset, flow);
+    if (!slot)
+      slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset, flow, ranks);
     FailedRay r = given;
     WatertightCounts counts;
     TraversalStats stats;

@@ -74,6 +74,11 @@ struct WatertightOptions {
   // holding the ray in every lane (World::intersectPacket), so that every answer comes from the
   // packet walk of the bricks and its 8-lane solve; `scalar` one ray at a time.
   RayFlow rayFlow = RayFlow::Wavefront;
+  // > 1: the volume split as a data-parallel render over that many ranks splits it, each part a
+  // World of its own (SceneDesc::dataPart), and every query the closest of their hits (of equal
+  // ones the lowest part's) or "blocked" if any part is: the checks across rank seams, in one
+  // process. The reference and the classes stay the whole volume's.
+  int ranks = 1;
 };
 constexpr size_t kMaxKeptFailures = 100000;
 
@@ -88,6 +93,7 @@ struct FailureFile {
   RayFlow rayFlow = RayFlow::Scalar;  // files written before ray flows existed traced one ray at a time
   uint64_t seed = 1;
   Vec3d offset{0, 0, 0};
+  int ranks = 1;  // WatertightOptions::ranks
   std::vector<FailedRay> rays;
 };
 void writeFailures(const std::string& path, const FailureFile& file);
@@ -95,6 +101,9 @@ FailureFile readFailures(const std::string& path);
 
 // Replays failed rays alone against the scene (the same volume, surface, intersector and offset):
 // each ray's test is run again and its outcome written into a copy (what is "" when it passes).
+std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
+                                      const std::vector<FailedRay>& rays, int ranks);
+// (the whole volume)
 std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorSpec& intersector, const Vec3d& offset, RayFlow flow,
                                       const std::vector<FailedRay>& rays);
 

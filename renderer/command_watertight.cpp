@@ -42,14 +42,14 @@ std::string listOf(const std::vector<double>& ts) {
 int replay(const CheckFlags& flags) {
   for (const auto& [given, name] : {std::pair{!flags.intersector.empty(), "--intersector"}, {!flags.offset.empty(), "--offset"},
                                     {!flags.dump.empty(), "--dump"}, {!flags.json.empty(), "--json"},
-                                    {!flags.rayFlow.empty(), "--ray-flow"}})
-    if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector, ray flow and offset");
+                                    {!flags.rayFlow.empty(), "--ray-flow"}, {flags.ranks != 1, "--ranks"}})
+    if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector, ray flow, offset and ranks");
   const FailureFile file = readFailures(flags.replay);
   const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
   IntersectorSpec spec;
   std::string error;
   if (!parseIntersector(file.intersector, spec, error)) throw InputError(flags.replay, "line 1", "intersector: " + error);
-  const std::vector<FailedRay> now = replayFailures(scene, spec, file.offset, file.rayFlow, file.rays);
+  const std::vector<FailedRay> now = replayFailures(scene, spec, file.offset, file.rayFlow, file.rays, file.ranks);
   std::printf("replay %s on %s: intersector %s, offset (%a, %a, %a), %zu rays\n", flags.replay.c_str(), flags.scene.c_str(),
               file.intersector.c_str(), file.offset.x, file.offset.y, file.offset.z, file.rays.size());
   size_t failing = 0;
@@ -92,14 +92,16 @@ int watertight(const CheckFlags& flags) {
   options.rayFlow = scene.settings.rayFlow;
   if (!flags.rayFlow.empty() && !parseRayFlow(flags.rayFlow, options.rayFlow))
     throw InputError("--ray-flow", "", "unknown ray flow '" + flags.rayFlow + "' (known: wavefront, scalar)");
+  options.ranks = flags.ranks;
   options.keepFailures = !flags.dump.empty();
   if (!flags.dump.empty()) checkWritable(flags.dump);
   const auto start = std::chrono::steady_clock::now();
   const std::vector<WatertightReport> reports = checkWatertight(scene, spec, options);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::printf("watertight %s: intersector %s, %s flow, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)\n",
+  std::printf("watertight %s: intersector %s, %s flow, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)%s\n",
               flags.scene.c_str(), intersectorName(spec).c_str(), rayFlowName(options.rayFlow), flags.rays, flags.seed, options.offset.x,
-              options.offset.y, options.offset.z);
+              options.offset.y, options.offset.z,
+              options.ranks > 1 ? (", each volume split over " + std::to_string(options.ranks) + " ranks").c_str() : "");
   std::printf("%-7s %-10s %9s %10s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "reference",
               "parity_errors", "self_hits", "inside_escapes", "shadow_mismatches");
   WatertightCounts total;
@@ -140,6 +142,7 @@ int watertight(const CheckFlags& flags) {
     file.rayFlow = options.rayFlow;
     file.seed = uint64_t(flags.seed);
     file.offset = options.offset;
+    file.ranks = options.ranks;
     for (const WatertightReport& r : reports) file.rays.insert(file.rays.end(), r.failures.begin(), r.failures.end());
     writeFailures(flags.dump, file);
     std::printf("%zu failing rays written to %s (replay: isotrace watertight %s --replay %s)\n", file.rays.size(),
@@ -162,6 +165,11 @@ Command addWatertightCommand(CLI::App& app) {
   cmd->add_option("--seed", f.seed, "random seed (default 1)")->check(CLI::Range(0LL, 1LL << 62));
   cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: each query an 8-lane packet, the packet walk) or scalar");
   cmd->add_option("--offset", f.offset, "move every volume by X,Y,Z (e.g. 1e5,1e5,1e5)");
+  cmd->add_option("--ranks", f.ranks,
+                  "split each volume as a data-parallel render over N ranks would (render --data-parallel), each part "
+                  "a World of its own in this process, and check the closest of their hits: the seams between ranks "
+                  "(default 1, at most 64)")
+      ->check(CLI::Range(1, 64));
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--json", f.json, "write the counts as JSON");
   cmd->add_option("--dump", f.dump, "write every failing ray (exact, in hexadecimal) to FILE, to replay alone");

@@ -65,7 +65,7 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
 // The flags of the exactness commands (`watertight`, `bench`).
 struct CheckFlags {
   std::string scene, intersector, json, offset, dump, replay, rayFlow;
-  int rays = 100000, threads = 0;
+  int rays = 100000, threads = 0, ranks = 1;
   long long seed = 1;
   SceneOverrides overrides;
 };

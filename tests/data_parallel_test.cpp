@@ -10,6 +10,7 @@
 #include <cstring>
 #include <random>
 
+#include "accuracy/watertight.h"
 #include "scene/world.h"
 #include "volume/bricks.h"
 #include "volume/input_error.h"
@@ -122,6 +123,43 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
     held += grid.bytes();
   }
   EXPECT_LT(held, whole.bytes() * 12 / 10);  // the seams' layers twice, little more
+}
+
+// `watertight --ranks N`: the checks with each volume split over N parts, each a World of its
+// own, at the origin and at 1e5: no error, and the very crossings of the whole volume.
+TEST(DataParallel, WatertightAcrossRankSeams) {
+  const SceneDesc scene = parseSceneFile(std::string(ISOTRACE_SOURCE_DIR) + "/tests/data/exactness/real_volumes.json");
+  IntersectorSpec spec;
+  for (const Vec3d offset : {Vec3d{0, 0, 0}, Vec3d{1e5, 1e5, 1e5}}) {
+    WatertightOptions options;
+    options.rays = 8000;
+    options.offset = offset;
+    options.rayFlow = RayFlow::Scalar;
+    const std::vector<WatertightReport> whole = checkWatertight(scene, spec, options);
+    for (int ranks : {2, 3}) {
+      options.ranks = ranks;
+      const std::vector<WatertightReport> split = checkWatertight(scene, spec, options);
+      ASSERT_EQ(split.size(), whole.size());
+      for (size_t s = 0; s < split.size(); ++s) {
+        EXPECT_EQ(split[s].counts.errors(), 0u) << ranks << " ranks, surface " << s;
+        EXPECT_EQ(split[s].counts.crossings, whole[s].counts.crossings) << ranks << " ranks, surface " << s;
+        EXPECT_GT(split[s].counts.crossings, 5000u);
+      }
+    }
+  }
+  // A dump says how the volume was split, so that a replay splits it alike.
+  const std::string dir = test::scratchDir();
+  FailureFile file;
+  file.scene = "s.json";
+  file.intersector = "isolation:8";
+  file.ranks = 3;
+  writeFailures(dir + "/f.txt", file);
+  EXPECT_EQ(readFailures(dir + "/f.txt").ranks, 3);
+  for (const char* bad : {"0", "65", "x"}) {
+    test::writeText(dir + "/bad.txt", std::string("# isotrace watertight failures: intersector=isolation:8 ranks=") + bad +
+                                          " scene=s.json\n");
+    EXPECT_THROW(readFailures(dir + "/bad.txt"), InputError) << bad;
+  }
 }
 
 TEST(DataParallel, WindowsOutsideTheVolumeAreRefusedNamingTheFile) {
