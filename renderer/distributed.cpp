@@ -529,10 +529,24 @@ class RankTracer {
   // ray's cells where the single process cuts them (at the ray's end), or a hit's bits could
   // change: so the ray they get ends two cell diagonals past this rank's hit, where no cell of a
   // closer hit reaches, and they hold no brick the shortened ray does not reach either way.
-  void intersect(const std::vector<Ray>& rays, std::vector<Hit>& hits, std::vector<char>& found, TraversalStats& stats) {
+  // `coherent` (camera rays, a pixel's samples next to each other): this rank's own are traced
+  // in Embree packets of World::kPacket (the same hits as one at a time), as one process does.
+  void intersect(const std::vector<Ray>& rays, std::vector<Hit>& hits, std::vector<char>& found, TraversalStats& stats,
+                 bool coherent = false) {
     hits.assign(rays.size(), Hit());
     found.assign(rays.size(), 0);
-    traceMine(rays, stats, [&](size_t i, TraversalStats& s) { found[i] = m_world.intersect(rays[i], hits[i], s) ? 1 : 0; });
+    if (coherent) {
+      const size_t packets = (rays.size() + World::kPacket - 1) / World::kPacket;
+      parallel(packets, stats, [&](size_t k, TraversalStats& s) {
+        const size_t i = k * World::kPacket;
+        const int n = int(std::min<size_t>(World::kPacket, rays.size() - i));
+        bool hit[World::kPacket];
+        m_world.intersectPacket(&rays[i], n, &hits[i], hit, s);
+        for (int j = 0; j < n; ++j) found[i + size_t(j)] = hit[j] ? 1 : 0;
+      });
+    } else {
+      traceMine(rays, stats, [&](size_t i, TraversalStats& s) { found[i] = m_world.intersect(rays[i], hits[i], s) ? 1 : 0; });
+    }
     std::vector<Ray> ask = rays;
     for (size_t i = 0; i < rays.size(); ++i)
       if (found[i]) {
@@ -798,10 +812,10 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
           tracer.occluded(rays, answers, traced.traversal);
           eachAsking([&](PathState& p, size_t k, RayCounters&) { integrator.afterShadow(p, answers[k] != 0); });
         }
-        cameraStage = false;
         collect(false);
-        tracer.intersect(rays, hits, answers, traced.traversal);
+        tracer.intersect(rays, hits, answers, traced.traversal, cameraStage);
         eachAsking([&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, answers[k] != 0, hits[k], c); });
+        cameraStage = false;
         bool more = false;
         for (const PathState& p : paths) more = more || p.tracing || p.shadowing;
         if (!tracer.anyRank(more)) break;
