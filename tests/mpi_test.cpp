@@ -245,6 +245,14 @@ TEST(Mpi, DataParallelRefusesWhatItCannotDoYet) {
       EXPECT_FALSE(fs::exists(image));
     }
   }
+  // Bad input on one rank only (MPMD): one line from rank 0 naming that rank, no image, no hang.
+  test::writeText(dir + "/bad.json", "{\"camera\": {\"fov\": 500}}");
+  const std::string common = " render --data-parallel --quiet -o " + image + " ";
+  const auto r = runCommand(mpirun(1) + ISOTRACE_BINARY + common + dir + "/plain.json : -np 1 " + ISOTRACE_BINARY + common +
+                            dir + "/bad.json");
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("isotrace: rank 1 of 2: " + dir + "/bad.json: /camera/fov"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(image));
 }
 
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
