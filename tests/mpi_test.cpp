@@ -257,41 +257,28 @@ TEST(Mpi, DataParallelRefusesWhatItCannotDoYet) {
 
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
 // writes the image of the samples gathered so far, every pixel sampled (pieces go out pass
-// by pass), marked interrupted.
+// by pass; data-parallel ranks stop together after a pass over all pixels), marked interrupted.
 TEST(Mpi, InterruptWritesThePartialImage) {
-  const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", pathScene());
-  const std::string image = dir + "/t.exr";
-  // The signal goes once rank 0 says the render has begun (every rank has loaded by then).
-  test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path " +
-                    "--spp 1000000 --threads 1 -o " + image + " >/dev/null");
-  ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();
-  run.signal(SIGINT);
-  EXPECT_NE(run.wait(), 0) << "mpirun ends with an error status after a signal";
-  std::map<std::string, std::string> metadata;
-  const std::vector<float> pixels = readExr(image, nullptr, &metadata);
-  ASSERT_FALSE(pixels.empty());
-  EXPECT_EQ(metadata["isotrace:interrupted"], "1");
-  EXPECT_GE(std::stoi(metadata["isotrace:spp"]), 1) << "every pixel has samples";
-  for (const auto& entry : fs::directory_iterator(dir))
-    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
-}
-
-// The same with --data-parallel: the ranks stop together after a pass over all pixels.
-TEST(Mpi, DataParallelInterruptWritesThePartialImage) {
-  const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", pathScene());
-  const std::string image = dir + "/t.exr";
-  test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --data-parallel --integrator path " +
-                    "--spp 1000000 --threads 1 -o " + image + " >/dev/null");
-  ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();
-  run.signal(SIGINT);
-  EXPECT_NE(run.wait(), 0) << "mpirun ends with an error status after a signal";
-  std::map<std::string, std::string> metadata;
-  const std::vector<float> pixels = readExr(image, nullptr, &metadata);
-  ASSERT_FALSE(pixels.empty()) << run.err();
-  EXPECT_EQ(metadata["isotrace:interrupted"], "1");
-  EXPECT_GE(std::stoi(metadata["isotrace:spp"]), 1) << "every pixel has samples";
+  for (const std::string mode : {"", " --data-parallel"}) {
+    SCOPED_TRACE(mode);
+    const std::string dir = test::scratchDir();
+    test::writeText(dir + "/s.json", pathScene());
+    const std::string image = dir + "/t.exr";
+    fs::remove(image);  // (the scratch folder is the test's: the other mode's image may be there)
+    // The signal goes once rank 0 says the render has begun (every rank has loaded by then).
+    test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --integrator path" + mode +
+                      " --spp 1000000 --threads 1 -o " + image + " >/dev/null");
+    ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();
+    run.signal(SIGINT);
+    EXPECT_NE(run.wait(), 0) << "mpirun ends with an error status after a signal";
+    std::map<std::string, std::string> metadata;
+    const std::vector<float> pixels = readExr(image, nullptr, &metadata);
+    ASSERT_FALSE(pixels.empty()) << run.err();
+    EXPECT_EQ(metadata["isotrace:interrupted"], "1");
+    EXPECT_GE(std::stoi(metadata["isotrace:spp"]), 1) << "every pixel has samples";
+    for (const auto& entry : fs::directory_iterator(dir))
+      EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
+  }
 }
 
 }  // namespace

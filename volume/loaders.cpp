@@ -931,14 +931,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindo
   const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
   ScalarType type;
-  const bool named = parseSciVisName(path, dims, type);
-  if (layout.dims) dims = *layout.dims;
-  if (layout.type) type = *layout.type;
-  if (!layout.dims && !named)
-    throw InputError(path, "", "raw volume needs \"dims\" and \"type\" (or an Open SciVis name like name_64x64x64_uint8.raw)");
-  if (!layout.type && !named)
-    throw InputError(path, "", "raw volume needs \"type\" (uint8, uint16, int16, float32)");
-  checkDims(dims, path, "");
+  rawLayoutOf(path, layout, dims, type);
   const size_t expected = checkedBytes(dims, type, path);
   if (window) checkWindow(*window, dims, path);
   if (stream && window) return windowOf(loadRaw(path, layout, nullptr), window->first, window->extent);
