@@ -8,6 +8,8 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <random>
 
 #include "accuracy/watertight.h"
@@ -99,13 +101,34 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
     EXPECT_EQ(streamed->brickMin(b), bricks.brickMin(b)) << "brick " << b;
     EXPECT_EQ(streamed->brickMax(b), bricks.brickMax(b)) << "brick " << b;
   }
-  // Other files are read whole (then cut).
-  EXPECT_FALSE(rawBrickRanges(test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz")).has_value());
+  // A gzip file as one stream: the same ranges.
+  const std::string gz = test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz");
+  const Grid ct = readVolumeFile(gz).grid;
+  const BrickGrid ctBricks(ct);
+  const std::optional<BrickGrid> ctStreamed = rawBrickRanges(gz);
+  ASSERT_TRUE(ctStreamed.has_value());
+  ASSERT_EQ(ctStreamed->size(), ctBricks.size());
+  size_t differ = 0;
+  for (uint32_t b = 0; b < ctBricks.size(); ++b)
+    differ += ctStreamed->brickMin(b) != ctBricks.brickMin(b) || ctStreamed->brickMax(b) != ctBricks.brickMax(b);
+  EXPECT_EQ(differ, 0u);
+  // Other formats are read whole (then cut).
   EXPECT_FALSE(rawBrickRanges(test::dataPath("volumes/nucleon/nucleon.nrrd")).has_value());
-  // A file shorter than its name says: one error naming it.
+  // A file shorter than its name says, a gzip stream cut short: one error naming it.
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/short_16x16x16_uint8.raw", std::string(100, 'x'));
   EXPECT_THROW(rawBrickRanges(dir + "/short_16x16x16_uint8.raw"), InputError);
+  {
+    std::ifstream in(gz, std::ios::binary);
+    const std::string whole((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    test::writeText(dir + "/cut_256x256x133_uint8.raw.gz", whole.substr(0, whole.size() / 2));
+  }
+  try {
+    rawBrickRanges(dir + "/cut_256x256x133_uint8.raw.gz");
+    ADD_FAILURE() << "a gzip stream cut short was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cut_256x256x133_uint8.raw.gz"), std::string::npos) << e.what();
+  }
 
   SceneDesc scene = parseSceneText(R"({"volumes": [{"file": ")" + path + R"(", "isosurfaces": [{"value": 20}]}]})", "s.json");
   IntersectorSpec spec;

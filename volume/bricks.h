@@ -31,6 +31,19 @@ class BrickGrid {
     g.finishRanges();
     return g;
   }
+  // The same from a stream: `feed(layer)` calls layer(z, samples) for z = 0, 1, ..., dims.z - 1
+  // in turn (one whole layer each, x fastest, as float; e.g. as a gzip file inflates).
+  template <typename Feed>
+  static BrickGrid fromStream(Vec3i dims, Feed&& feed) {
+    BrickGrid g(dims);
+    feed([&](int z, const float* layer) {
+      const int bz = std::min(z / kCells, g.m_count.z - 1);
+      g.rangesOfRow(bz, layer, 1);
+      if (z % kCells == 0 && bz > 0 && bz * kCells == z) g.rangesOfRow(bz - 1, layer, 1);  // a layer two rows share
+    });
+    g.finishRanges();
+    return g;
+  }
 
   Vec3i count() const { return m_count; }
   Vec3i dims() const { return {m_cellDims.x + 1, m_cellDims.y + 1, m_cellDims.z + 1}; }  // the grid's samples

@@ -1033,8 +1033,9 @@ const char* volumeExtensions() {
 
 std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout) {
   const std::string name = lower(fs::path(path).filename().string());
-  if (!endsWith(name, ".raw") && !endsWith(name, ".bin") && !endsWith(name, ".dat")) return std::nullopt;
-  if (checkInputFile(path, "file").stream) return std::nullopt;
+  bool raw = false;
+  for (const char* ext : {".raw", ".bin", ".dat"}) raw = raw || endsWith(name, ext) || endsWith(name, std::string(ext) + ".gz");
+  if (!raw || checkInputFile(path, "file").stream) return std::nullopt;
   Vec3i dims;
   ScalarType type;
   rawLayoutOf(path, layout, dims, type);
@@ -1043,17 +1044,15 @@ std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout
   std::ifstream in = openFile(path, fileSize);
   char magic[2] = {0, 0};
   in.read(magic, 2);
-  if (in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b) return std::nullopt;  // gzip
-  if (fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
+  if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  if (gzip) checkInflatable(fileSize, expected, path);
   const size_t size = scalarTypeSize(type), layer = size_t(dims.x) * size_t(dims.y);
   std::vector<uint8_t> bytes;
   std::vector<float> values;
-  return BrickGrid::fromLayers(dims, [&](int z0, int z1) -> const float* {
-    const size_t count = size_t(z1 - z0 + 1) * layer;
-    bytes.resize(count * size);
+  // `count` samples of `bytes` as float, in native byte order.
+  auto toFloats = [&](size_t count) {
     values.resize(count);
-    in.seekg(std::streamoff(size_t(z0) * layer * size));
-    readExactly(in, bytes.data(), bytes.size(), path);
     auto convert = [&](auto sample) {
       using T = decltype(sample);
       for (size_t i = 0; i < count; ++i) {
@@ -1072,6 +1071,38 @@ std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout
       case ScalarType::Float32: convert(float()); break;
     }
     return values.data();
+  };
+  if (gzip) {
+    // Inflated as one stream, a layer at a time (the compressed file is held, not the volume).
+    return BrickGrid::fromStream(dims, [&](auto&& layerDone) {
+      bytes.reserve(layer * size);
+      size_t produced = 0;
+      int z = 0;
+      inflateStream(readFile(path), path, [&](const uint8_t* p, size_t n) {
+        if (n > expected - produced)
+          throw InputError(path, "", "decompressed data is larger than " + layoutName(dims, type) + " (" +
+                                         std::to_string(expected) + " bytes)");
+        produced += n;
+        while (n > 0) {
+          const size_t take = std::min(n, layer * size - bytes.size());
+          bytes.insert(bytes.end(), p, p + take);
+          p += take;
+          n -= take;
+          if (bytes.size() == layer * size) {
+            layerDone(z++, toFloats(layer));
+            bytes.clear();
+          }
+        }
+      });
+      if (produced != expected) throw InputError(path, "", sizeMismatch(dims, type, produced, expected));
+    });
+  }
+  return BrickGrid::fromLayers(dims, [&](int z0, int z1) -> const float* {
+    const size_t count = size_t(z1 - z0 + 1) * layer;
+    bytes.resize(count * size);
+    in.seekg(std::streamoff(size_t(z0) * layer * size));
+    readExactly(in, bytes.data(), bytes.size(), path);
+    return toFloats(count);
   });
 }
 

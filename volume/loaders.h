@@ -53,9 +53,10 @@ struct SampleWindow {
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {},
                           const SampleWindow* window = nullptr);
 void checkWindow(const SampleWindow& window, const Vec3i& dims, const std::string& file);
-// The brick ranges (BrickGrid) of a plain raw file's volume, read a row of bricks at a time,
-// keeping none of the samples: what a data-parallel rank needs to split the volume before it
-// reads its window. nullopt for any other file (gzip, a pipe, another format).
+// The brick ranges (BrickGrid) of a raw file's volume, keeping none of the samples: a plain file
+// read a row of bricks at a time, a gzip file inflated as one stream a layer at a time. What a
+// data-parallel rank needs to split the volume before it reads its window. nullopt for any other
+// file (a pipe, another format).
 std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout = {});
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
