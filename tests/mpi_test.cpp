@@ -216,6 +216,21 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
       EXPECT_EQ(stats["bytes_sent_per_rank"].size(), size_t(ranks));
     }
   }
+  // The other integrators' stages go the same way: compare's three images, ao.
+  for (const std::string integrator : {"compare", "ao"}) {
+    const std::string base = dir + "/field_" + integrator;
+    const std::string args = " render " + dir + "/field.json --data-parallel --integrator " + integrator + " --spp 3 --quiet -o ";
+    ASSERT_EQ(runIsotrace(args.substr(1) + base + "_one.exr").status, 0);
+    const auto r = runCommand(mpirun(2) + ISOTRACE_BINARY + args + base + "_two.exr --threads 1");
+    ASSERT_EQ(r.status, 0) << r.err;
+    for (const std::string part : integrator == "compare" ? std::vector<std::string>{".direct", ".global", ".indirect"}
+                                                          : std::vector<std::string>{""})
+    {
+      const std::vector<float> one = readExr(base + "_one" + part + ".exr");
+      ASSERT_FALSE(one.empty()) << base + "_one" + part + ".exr";
+      EXPECT_EQ(readExr(base + "_two" + part + ".exr"), one) << integrator << part;
+    }
+  }
 }
 
 // What a data-parallel render cannot do yet is refused in one line, alone and under mpirun.
