@@ -185,6 +185,21 @@ TEST(DataParallel, WatertightAcrossRankSeams) {
   }
 }
 
+// "distribution" in the integrator block: image (the default) or data; anything else is refused.
+TEST(DataParallel, DistributionKey) {
+  EXPECT_FALSE(parseSceneText(R"({"integrator": {"type": "path"}})", "s.json").settings.dataParallel);
+  EXPECT_TRUE(parseSceneText(R"({"integrator": {"distribution": "data"}})", "s.json").settings.dataParallel);
+  EXPECT_FALSE(parseSceneText(R"({"integrator": {"distribution": "image"}})", "s.json").settings.dataParallel);
+  for (const char* bad : {R"({"integrator": {"distribution": "rays"}})", R"({"integrator": {"distribution": 2}})"}) {
+    try {
+      parseSceneText(bad, "s.json");
+      ADD_FAILURE() << bad;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("s.json: /integrator/distribution"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(DataParallel, WindowsOutsideTheVolumeAreRefusedNamingTheFile) {
   const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
   for (const SampleWindow& w : {SampleWindow{{-1, 0, 0}, {10, 10, 10}}, SampleWindow{{0, 0, 0}, {129, 10, 10}},
