@@ -33,6 +33,9 @@ enum Tag : int {
   kPiece = 2,    // 0 -> rank: PieceHeader + the tile's sums so far; tile -1: no more
   kResult = 3,   // rank -> 0: PieceHeader + the tile's sums with the piece's samples
   kDone = 4,     // rank -> 0: every result sent, nothing more will come
+  // Data-parallel (renderFrameDataParallel), at the end of the frame:
+  kTiles = 5,    // rank -> 0: how many tiles it rendered, then their indices
+  kSums = 6,     // rank -> 0: those tiles' sums, pixel by pixel, in pieces of at most 64 MiB
 };
 
 constexpr int kPieceSamples = 8;
@@ -837,31 +840,61 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   RayCounters mineCounters = traced;
   for (const RayCounters& c : counters) mineCounters.add(c);
   sendCounters(mineCounters, result.counters, 0);
-  const int tileCount = int(mine.size()), sumBytes = int(sums.size() * sizeof(PixelSums));
-  std::vector<int> tileCounts(static_cast<size_t>(ranks)), byteCounts(static_cast<size_t>(ranks));
-  MPI_Gather(&tileCount, 1, MPI_INT, tileCounts.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
-  MPI_Gather(&sumBytes, 1, MPI_INT, byteCounts.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
-  std::vector<int> tileAt(static_cast<size_t>(ranks)), byteAt(static_cast<size_t>(ranks));
-  int allTiles = 0, allBytes = 0;
-  for (int q = 0; q < ranks && rank == 0; ++q) {
-    tileAt[size_t(q)] = allTiles;
-    byteAt[size_t(q)] = allBytes;
-    allTiles += tileCounts[size_t(q)];
-    allBytes += byteCounts[size_t(q)];
+  // Rank by rank, point to point, in pieces of at most 64 MiB (a large image's sums pass 2 GiB,
+  // MPI's counts are int), rank 0 placing each tile's pixels straight into the frame's sums.
+  constexpr size_t kChunk = (size_t(64) << 20) / sizeof(PixelSums);
+  std::vector<PixelSums> frame(rank == 0 ? size_t(w) * size_t(h) : 0);
+  auto place = [&](const std::vector<int>& ids, auto&& next) {  // next(): the next pixel's sums
+    for (int tile : ids) {
+      const TileRenderer::Rect r = tiles.rect(tile);
+      for (int y = r.y0; y < r.y1; ++y)
+        for (int x = r.x0; x < r.x1; ++x) frame[size_t(y) * size_t(w) + size_t(x)] = next();
+    }
+  };
+  if (rank == 0) {
+    size_t at = 0;
+    place(mine, [&] { return sums[at++]; });
+    for (int q = 1; q < ranks; ++q) {
+      int count = 0;
+      MPI_Recv(&count, 1, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      if (count < 0 || count > tiles.tiles()) job.abort(1);  // (a rank of this job sent it: cannot happen)
+      std::vector<int> ids(static_cast<size_t>(count));
+      MPI_Recv(ids.data(), count, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      size_t pixelsOf = 0;
+      for (int tile : ids) {
+        if (tile < 0 || tile >= tiles.tiles()) job.abort(1);
+        pixelsOf += size_t(tiles.rect(tile).pixels());
+      }
+      std::vector<PixelSums> piece;
+      size_t used = 0, left = pixelsOf;
+      place(ids, [&] {
+        if (used == piece.size()) {
+          piece.resize(std::min(kChunk, left));
+          MPI_Recv(piece.data(), int(piece.size() * sizeof(PixelSums)), MPI_BYTE, q, kSums, MPI_COMM_WORLD,
+                   MPI_STATUS_IGNORE);
+          left -= piece.size();
+          used = 0;
+        }
+        return piece[used++];
+      });
+    }
+  } else {
+    const int count = int(mine.size());
+    MPI_Send(&count, 1, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
+    MPI_Send(mine.data(), count, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
+    for (size_t at = 0; at < sums.size(); at += kChunk) {
+      const size_t n = std::min(kChunk, sums.size() - at);
+      MPI_Send(&sums[at], int(n * sizeof(PixelSums)), MPI_BYTE, 0, kSums, MPI_COMM_WORLD);
+    }
   }
-  std::vector<int> allTileIds(static_cast<size_t>(allTiles));
-  std::vector<PixelSums> allSums(size_t(allBytes) / sizeof(PixelSums));
-  MPI_Gatherv(mine.data(), tileCount, MPI_INT, allTileIds.data(), tileCounts.data(), tileAt.data(), MPI_INT, 0,
-              MPI_COMM_WORLD);
-  MPI_Gatherv(sums.data(), sumBytes, MPI_BYTE, allSums.data(), byteCounts.data(), byteAt.data(), MPI_BYTE, 0,
-              MPI_COMM_WORLD);
   result.seconds = since(start);
   double asked[4] = {tracer.raysAsked, tracer.raysSent, tracer.bytesSent, tracer.waitSeconds};
   std::vector<double> allAsked(static_cast<size_t>(4 * ranks));
   MPI_Gather(asked, 4, MPI_DOUBLE, allAsked.data(), 4, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   if (rank != 0) return result;
   if (figures) {
-    figures->tiles.assign(tileCounts.begin(), tileCounts.end());
+    figures->tiles.assign(static_cast<size_t>(ranks), 0);
+    for (int q = 0; q < ranks; ++q) figures->tiles[size_t(q)] = (tiles.tiles() - q + ranks - 1) / ranks;
     figures->raysAsked.clear();
     figures->raysSent.clear();
     figures->bytesSent.clear();
@@ -875,13 +908,6 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       figures->waitSeconds.push_back(f[3]);
       figures->busySeconds.push_back(std::max(0.0, result.seconds - f[3]));
     }
-  }
-  std::vector<PixelSums> frame(size_t(w) * size_t(h));
-  size_t at = 0;
-  for (int tile : allTileIds) {
-    const TileRenderer::Rect r = tiles.rect(tile);
-    for (int y = r.y0; y < r.y1; ++y)
-      for (int x = r.x0; x < r.x1; ++x) frame[size_t(y) * size_t(w) + size_t(x)] = allSums[at++];
   }
   resolveFrame(frame, options, film, direct, result);
   return result;
