@@ -69,12 +69,14 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
 
 // One frame of a data-parallel render ("distribution": "data"): each rank's World holds only its
 // part of each volume (SceneDesc::dataPart), and the ranks work in lockstep. Rank r renders tiles
-// r, r + N, ... with the wavefront flow's stages (all samples of a tile, 16 at a time); at each
-// stage every rank's rays go to every rank, each answers them against its part (a closest hit,
-// or whether a shadow segment is blocked), and the asker keeps the closest hit (the lower rank
-// on a tie) or "blocked" if any rank is. Every brick is one rank's and a brick's answer is the
-// single process's (tests/data_parallel_test.cpp), so the image is bit for bit renderFrame's.
-// Rank 0 gathers the tiles' sums. Collective; `figures` gets the rays each rank sent and answered.
+// r, r + N, ... pass by pass with the wavefront flow's stages; at each stage a rank traces its own
+// rays whole and sends each to the ranks whose volume part it reaches (past its own hit: no
+// further than two cell diagonals), which answer against their iso-surfaces (a closest hit, or
+// whether a shadow segment is blocked); the asker keeps the closest hit (the lower rank on a tie)
+// or "blocked" if any rank is. Every brick is one rank's and a brick's answer is the single
+// process's (tests/data_parallel_test.cpp), so the image is bit for bit renderFrame's. Rank 0
+// gathers the tiles' sums. Collective; `figures` gets per rank its tiles, the rays it asked and
+// sent, the bytes it sent and the seconds it spent in the exchanges (docs/distributed.md).
 RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                      const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 
