@@ -223,41 +223,58 @@ inline Real approachSide(const Cubic<Real>& c, const Real g[8], Real flat) {
 }
 
 // The class (+1 inside, -1 outside) where the ray crosses the grid plane `face` on `axis`, a seam
-// between two bricks' boxes at which the float walk found the field exactly on the surface.
-// A brick's walk leaving through the seam and the next brick's walk entering through it are
-// separate queries that must agree on the class there, or a crossing is counted twice or not at
-// all. The float point cannot decide it: rounded onto an edge of exact zeros (integer data, an
-// integer iso value) it no longer says which side of the edge the ray passes (a hole found at
-// 1e7 rays, hydrogen iso 20 at 1e5). So both take it from the ray in double (`org`, `dir` in
-// grid coordinates), in the cell on the plane's upper side whichever side they are on, and get
-// the same bits. Zero in double too (the double ray through a zero edge): the side the field
-// approaches zero from along the ray in the cell it comes from; still none: outside.
+// between two bricks' boxes at which the float walk found the field exactly on the surface, or 0
+// if the field is exactly on the surface there in double too. A brick's walk leaving through the
+// seam and the next brick's walk entering through it are separate queries that must agree on the
+// class there, or a crossing is counted twice or not at all. The float point cannot decide it:
+// rounded onto an edge of exact zeros (integer data, an integer iso value) it no longer says
+// which side of the edge the ray passes (a hole found at 1e7 rays, hydrogen iso 20 at 1e5). So
+// both take it from the ray in double (`org`, `dir` in grid coordinates), in the cell on the
+// plane's upper side whichever side they are on, and get the same bits. Where the double point
+// is on the surface too (a face of exact zeros the ray runs through or touches), the convention
+// holds: the class the ray had before stands (0: the walks decide as without this, the leaving
+// one by the side its segment approaches from, the entering one by classBehindEntry).
 template <typename Cells>
 int seamClass(const Cells& cells, const Vec3d& org, const Vec3d& dir, double iso, int axis, int face) {
   const double t = (double(face) - org[axis]) / dir[axis];
   Vec3i cell;
-  CellSegment<double> seg;
+  Vec3d p;
   for (int a = 0; a < 3; ++a) {
     if (a == axis) {
       cell[a] = std::clamp(face, 0, cells.dims[a] - 2);
-      seg.b[a] = double(face - cell[a]);
+      p[a] = double(face - cell[a]);
     } else {
       const double x = org[a] + t * dir[a];
       cell[a] = int(std::clamp(std::floor(x), 0.0, double(cells.dims[a] - 2)));
-      seg.b[a] = std::clamp(x - double(cell[a]), 0.0, 1.0);
+      p[a] = std::clamp(x - double(cell[a]), 0.0, 1.0);
     }
   }
-  cells.load(cell, iso, seg.g);
-  const double f = trilinear(seg.g, seg.b);
-  if (f != 0) return f > 0 ? 1 : -1;
-  if (dir[axis] > 0) {  // (a seam is never the grid's face: both cells exist)
-    if (cell[axis] == 0) return -1;
-    --cell[axis];
-    seg.b[axis] = 1;
-    cells.load(cell, iso, seg.g);
-  }
-  seg.a = seg.b - dir;
-  return approachSide(cellCubic(seg), seg.g, -1.0) > 0 ? 1 : -1;
+  double g[8];
+  cells.load(cell, iso, g);
+  const double f = trilinear(g, p);
+  return f > 0 ? 1 : f < 0 ? -1 : 0;
+}
+
+// Entering a box through a face exactly on the surface (a brick seam, a restart at a face) where
+// the ray in double is on the surface too (seamClass 0), the class is the one the ray had in the
+// cell behind that face, as a traversal through it would have carried it: the side the cubic of
+// that cell's segment (ending at the face point `entry`, local to `cell`) approaches zero from.
+// Otherwise, or at the grid's boundary, `carried`. (A function rather than a lambda of the
+// traversal: it runs at most once per query.)
+template <typename Real, typename Cells>
+Real classBehindEntry(const Cells& cells, Real iso, const GridRay<Real>& ray, Vec3i cell, int entryAxis,
+                      int entryStep, const Vec3<Real>& entry, const Real g[8], Real carried) {
+  Vec3i prev = cell;
+  prev[entryAxis] -= entryStep;
+  if (prev[entryAxis] < 0 || prev[entryAxis] > cells.dims[entryAxis] - 2) return carried;
+  if (trilinear(g, entry) != Real(0)) return carried;
+  CellSegment<Real> behind;
+  cells.load(prev, iso, behind.g);
+  behind.b = entry;
+  behind.b[entryAxis] = Real(1) - entry[entryAxis];
+  behind.a = behind.b - ray.dir;
+  const Real tiny = std::numeric_limits<Real>::denorm_min();
+  return approachSide(cellCubic(behind), behind.g, carried) > Real(0) ? tiny : -tiny;
 }
 
 // The class (+1 inside, -1 outside, 0 exactly on the surface) of the field of `cell` in double,
@@ -412,14 +429,22 @@ class CellWalk {
     // values only on the side the ray is already on.
     if (m_entryPending) {
       // Entering through a seam exactly on the surface (the cell behind is not of one strict
-      // class, so it is another brick's): the class there is seamClass's.
+      // class, so it is another brick's): the class there is seamClass's, or where that is 0,
+      // the one the ray had in the cell behind (classBehindEntry).
       m_entryPending = false;
-      if (positive != 8 && negative != 8 && !atGridFace(m_entryAxis, true) &&
-          trilinear(seg.g, localAt(m_t0, m_entryAxis, faceValue(m_entryAxis, true))) == Real(0))
-        m_carried = seamClassAt(m_entryAxis, gridFace(m_entryAxis, true)) > 0 ? kTiny : -kTiny;
+      if (positive != 8 && negative != 8 && !atGridFace(m_entryAxis, true)) {
+        const Vec3<Real> entry = localAt(m_t0, m_entryAxis, faceValue(m_entryAxis, true));
+        if (trilinear(seg.g, entry) == Real(0)) {
+          const int c = seamClassAt(m_entryAxis, gridFace(m_entryAxis, true));
+          m_carried = c != 0 ? (c > 0 ? kTiny : -kTiny)
+                             : classBehindEntry(cells, m_iso, *m_ray, m_cell, m_entryAxis, m_step[m_entryAxis], entry,
+                                                seg.g, m_carried);
+        }
+      }
     }
     // Leaving through a seam exactly on the surface: the next brick's walk starts in
-    // seamClass's class, so this one ends in it, with a crossing in this cell if it differs.
+    // seamClass's class, so this one ends in it, with a crossing in this cell if it differs
+    // (seamClass 0: as any exact zero at a segment's end).
     m_seamExit = 0;
     if (positive != 8 && negative != 8 && m_throughFace && leavesBox(m) && !atGridFace(m, false) &&
         trilinear(seg.g, localAt(m_tb, m, faceValue(m, false))) == Real(0))
