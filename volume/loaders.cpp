@@ -927,6 +927,27 @@ void rawLayoutOf(const std::string& path, const RawLayout& layout, Vec3i& dims, 
   checkDims(dims, path, "");
 }
 
+// Opens a raw file of `dims` samples of `type`: whether it is gzip (its first two bytes), and
+// checked against that size (a plain file exactly, a gzip one for a plausible ratio).
+std::ifstream openRawFile(const std::string& path, const Vec3i& dims, ScalarType type, bool& gzip) {
+  const size_t expected = checkedBytes(dims, type, path);
+  size_t fileSize;
+  std::ifstream in = openFile(path, fileSize);
+  char magic[2] = {0, 0};
+  in.read(magic, 2);
+  gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
+  if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
+  if (gzip) checkInflatable(fileSize, expected, path);
+  return in;
+}
+
+// Whether a (lower-case) file name is a raw volume's: .raw, .bin, .dat, plain or .gz.
+bool isRawName(const std::string& name) {
+  for (const char* ext : {".raw", ".bin", ".dat"})
+    if (endsWith(name, ext) || endsWith(name, std::string(ext) + ".gz")) return true;
+  return false;
+}
+
 Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindow* window) {
   const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
@@ -950,13 +971,8 @@ Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindo
     finishSamples(samples.get(), type, dims, layout.bigEndian, path);
     return Grid(dims, type, std::shared_ptr<const void>(samples, samples.get()));
   }
-  size_t fileSize;
-  std::ifstream in = openFile(path, fileSize);
-  char magic[2] = {0, 0};
-  in.read(magic, 2);
-  const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
-  if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
-  if (gzip) checkInflatable(fileSize, expected, path);
+  bool gzip;
+  std::ifstream in = openRawFile(path, dims, type, gzip);
   if (window) return loadRawWindow(path, in, gzip, dims, type, layout.bigEndian, *window);
   std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
   uint8_t* dst = samples.get();
@@ -1033,20 +1049,13 @@ const char* volumeExtensions() {
 
 std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout) {
   const std::string name = lower(fs::path(path).filename().string());
-  bool raw = false;
-  for (const char* ext : {".raw", ".bin", ".dat"}) raw = raw || endsWith(name, ext) || endsWith(name, std::string(ext) + ".gz");
-  if (!raw || checkInputFile(path, "file").stream) return std::nullopt;
+  if (!isRawName(name) || checkInputFile(path, "file").stream) return std::nullopt;
   Vec3i dims;
   ScalarType type;
   rawLayoutOf(path, layout, dims, type);
   const size_t expected = checkedBytes(dims, type, path);
-  size_t fileSize;
-  std::ifstream in = openFile(path, fileSize);
-  char magic[2] = {0, 0};
-  in.read(magic, 2);
-  const bool gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
-  if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
-  if (gzip) checkInflatable(fileSize, expected, path);
+  bool gzip;
+  std::ifstream in = openRawFile(path, dims, type, gzip);
   const size_t size = scalarTypeSize(type), layer = size_t(dims.x) * size_t(dims.y);
   std::vector<uint8_t> bytes;
   std::vector<float> values;
@@ -1119,8 +1128,7 @@ void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& fi
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const VolumePart& part,
                           const SampleWindow* window) {
   const std::string name = lower(fs::path(path).filename().string());
-  bool raw = false;
-  for (const char* ext : {".raw", ".bin", ".dat"}) raw = raw || endsWith(name, ext) || endsWith(name, std::string(ext) + ".gz");
+  const bool raw = isRawName(name);
   if (window && !raw) {
     // Formats without a window reader of their own: read whole, keep the window.
     VolumeFile f = readVolumeFile(path, layout, part, nullptr);
