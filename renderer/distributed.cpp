@@ -504,11 +504,32 @@ namespace {
 static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<Hit>,
               "rays and hits go between ranks as bytes (every rank runs the same binary)");
 
-// The ranks of a data-parallel render answering each other's rays. Every call is collective:
-// all ranks call it together, each with its own rays (maybe none). A rank traces its own rays
-// whole (meshes, which every rank holds, and its part of the volumes) and sends each to the
-// other ranks whose volume part the ray's segment passes through, which trace it against their
-// iso-surfaces only (World::kVolumeMask) and send back what they found (hits only).
+// The messages of a data-parallel frame's stages, per slot of the pipeline (renderFrameDataParallel):
+// tag kAsk + 2 * slot carries a stage's rays to a rank, kAsk + 1 + 2 * slot the answers back.
+constexpr int kAsk = 16;
+
+// One stage of a round of paths (its camera, shadow or continuation rays) on its way through the
+// ranks: this rank's rays and what is known of them so far, and the rays the other ranks asked of
+// this rank in the same stage.
+struct Flight {
+  bool shadow = false;
+  std::vector<Ray> rays;
+  std::vector<Hit> hits;
+  std::vector<char> found;  // a hit found (closest-hit rays), the ray blocked (shadow rays)
+  std::vector<int> from;    // the rank whose hit `hits` holds
+  std::vector<Ray> theirs;  // the rays other ranks sent here, and where they came from
+  std::vector<int> theirIndex, theirRank;
+  std::vector<std::vector<char>> asks, backs;  // this rank's messages, by rank, being written
+};
+
+// The ranks of a data-parallel render answering each other's rays. A rank traces its own rays
+// whole (meshes, which every rank holds, and its part of the volumes) and sends each to the other
+// ranks whose volume part the ray's segment passes through, which trace it against their
+// iso-surfaces only (World::kVolumeMask) and send back what they found (hits only). A stage is
+// three steps — ask, answer, gather — that every rank takes for each flight of a slot in the same
+// order (the slots in any order: a slot's messages pair up by their tag and order alone).
+// Messages go point to point and never block the sender, so a rank waits only when no slot has
+// the messages its next step needs.
 class RankTracer {
  public:
   RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
@@ -520,87 +541,204 @@ class RankTracer {
     double mine[6] = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};
     std::vector<double> all(static_cast<size_t>(6 * ranks));
     MPI_Allgather(mine, 6, MPI_DOUBLE, all.data(), 6, MPI_DOUBLE, MPI_COMM_WORLD);
+    // Padded for rounding (a ray's segment is tested in double against the box of bricks).
     for (int r = 0; r < ranks; ++r) {
       const double* b = &all[size_t(6 * r)];
-      m_lower[size_t(r)] = {b[0], b[1], b[2]};
-      m_upper[size_t(r)] = {b[3], b[4], b[5]};
+      for (int a = 0; a < 3; ++a) {
+        const double pad = 1e-6 * (std::fabs(b[a]) + std::fabs(b[3 + a]) + (b[3 + a] - b[a])) + 1e-9;
+        m_lower[size_t(r)][a] = b[a] - pad;
+        m_upper[size_t(r)][a] = b[3 + a] + pad;
+      }
     }
   }
 
-  // The closest hit of each of `rays` over all ranks' parts of the scene. This rank traces its
-  // rays first; the others need only look before the hit it found. Their walks must cut the
-  // ray's cells where the single process cuts them (at the ray's end), or a hit's bits could
-  // change: so the ray they get ends two cell diagonals past this rank's hit, where no cell of a
-  // closer hit reaches, and they hold no brick the shortened ray does not reach either way.
-  // `coherent` (camera rays, a pixel's samples next to each other): this rank's own are traced
-  // in Embree packets of World::kPacket (the same hits as one at a time), as one process does.
-  void intersect(const std::vector<Ray>& rays, std::vector<Hit>& hits, std::vector<char>& found, TraversalStats& stats,
-                 bool coherent = false) {
-    hits.assign(rays.size(), Hit());
-    found.assign(rays.size(), 0);
-    if (coherent) {
-      const size_t packets = (rays.size() + World::kPacket - 1) / World::kPacket;
+  // Step 1: this rank traces f.rays whole and sends each to the other ranks whose volume box its
+  // segment reaches: a shadow ray only if nothing here blocks it; a closest-hit ray that hit here
+  // shortened to two cell diagonals past the hit. (The others need only look before the hit, but
+  // their walks must cut the ray's cells where the single process cuts them, at the ray's end, or
+  // a hit's bits could change: no cell of a closer hit reaches that far, and they hold no brick the
+  // shortened ray does not reach either way.) `coherent` (camera rays, a pixel's samples next to
+  // each other): traced in Embree packets of World::kPacket (the same hits as one at a time), as
+  // one process does. `more`: whether this rank's round still has paths asking for rays (sent with
+  // a shadow stage's rays; the round ends when no rank's has).
+  void ask(Flight& f, int slot, bool more, bool coherent, TraversalStats& stats) {
+    const size_t n = f.rays.size();
+    f.hits.assign(n, Hit());
+    f.found.assign(n, 0);
+    f.from.assign(n, m_rank);
+    if (f.shadow) {
+      parallel(n, stats, [&](size_t i, TraversalStats& s) { f.found[i] = m_world.occluded(f.rays[i], s) ? 1 : 0; });
+    } else if (coherent) {
+      const size_t packets = (n + World::kPacket - 1) / World::kPacket;
       parallel(packets, stats, [&](size_t k, TraversalStats& s) {
         const size_t i = k * World::kPacket;
-        const int n = int(std::min<size_t>(World::kPacket, rays.size() - i));
+        const int m = int(std::min<size_t>(World::kPacket, n - i));
         bool hit[World::kPacket];
-        m_world.intersectPacket(&rays[i], n, &hits[i], hit, s);
-        for (int j = 0; j < n; ++j) found[i + size_t(j)] = hit[j] ? 1 : 0;
+        m_world.intersectPacket(&f.rays[i], m, &f.hits[i], hit, s);
+        for (int j = 0; j < m; ++j) f.found[i + size_t(j)] = hit[j] ? 1 : 0;
       });
     } else {
-      traceMine(rays, stats, [&](size_t i, TraversalStats& s) { found[i] = m_world.intersect(rays[i], hits[i], s) ? 1 : 0; });
+      parallel(n, stats, [&](size_t i, TraversalStats& s) { f.found[i] = m_world.intersect(f.rays[i], f.hits[i], s) ? 1 : 0; });
     }
-    std::vector<Ray> ask = rays;
-    for (size_t i = 0; i < rays.size(); ++i)
-      if (found[i]) {
-        const float reach = float(2 * m_cell / double(length(rays[i].dir)));
-        ask[i].tfar = std::min(rays[i].tfar, std::nextafter(hits[i].t + reach, INFINITY) * (1 + 1e-6f));
+    f.asks.resize(size_t(m_ranks));
+    const int32_t header[2] = {more ? 1 : 0, 0};
+    for (std::vector<char>& bytes : f.asks) bytes.assign(reinterpret_cast<const char*>(header), reinterpret_cast<const char*>(header + 2));
+    for (size_t i = 0; i < n; ++i) {
+      if (f.shadow && f.found[i]) continue;
+      Asked a{f.rays[i], int(i)};
+      if (!f.shadow && f.found[i]) {
+        const float reach = float(2 * m_cell / double(length(a.ray.dir)));
+        a.ray.tfar = std::min(a.ray.tfar, std::nextafter(f.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
       }
-    exchange(ask, nullptr);
-    std::vector<Found> answers(m_theirs.size());
-    traceTheirs(stats, [&](size_t k, TraversalStats& s) {
-            Ray r = m_theirs[k];
-            r.mask = World::kVolumeMask;
-            answers[k].found = m_world.intersect(r, answers[k].hit, s) ? 1 : 0;
-    });
-    // Back to the rank that asked: the hits found, with the index of the ray in its batch.
-    std::vector<std::vector<Found>> back(static_cast<size_t>(m_ranks));
-    for (size_t k = 0; k < answers.size(); ++k)
-      if (answers[k].found) {
-        answers[k].index = m_theirIndex[k];
-        back[size_t(m_theirRank[k])].push_back(answers[k]);
-      }
-    const std::vector<std::vector<Found>> got = sendAll(back);
-    // The closest; of equal ones the lowest rank's (this rank's own answer is in rank order too).
-    std::vector<int> from(rays.size(), m_rank);
-    for (int q = 0; q < m_ranks; ++q)
-      for (const Found& a : got[size_t(q)]) {
-        const size_t i = size_t(a.index);
-        if (!found[i] || a.hit.t < hits[i].t || (a.hit.t == hits[i].t && q < from[i])) {
-          hits[i] = a.hit;
-          found[i] = 1;
-          from[i] = q;
+      for (int q = 0; q < m_ranks; ++q)
+        if (q != m_rank && reaches(a.ray, q)) {
+          append(f.asks[size_t(q)], a);
+          raysSent += 1;
         }
-      }
+    }
+    raysAsked += double(n);
+    for (int q = 0; q < m_ranks; ++q)
+      if (q != m_rank) post(f.asks[size_t(q)], q, kAsk + 2 * slot);
   }
 
-  // Whether each of `rays` is blocked on some rank: this rank first, the others only for the
-  // rays it finds free.
-  void occluded(const std::vector<Ray>& rays, std::vector<char>& blocked, TraversalStats& stats) {
-    blocked.assign(rays.size(), 0);
-    traceMine(rays, stats, [&](size_t i, TraversalStats& s) { blocked[i] = m_world.occluded(rays[i], s) ? 1 : 0; });
-    exchange(rays, &blocked);
-    std::vector<char> answers(m_theirs.size());
-    traceTheirs(stats, [&](size_t k, TraversalStats& s) {
-      Ray r = m_theirs[k];
+  // Step 2: the rays the other ranks sent in this stage, traced against this rank's iso-surfaces,
+  // and what they found sent back. False when this is a shadow stage and no rank's round had paths
+  // asking for rays (`more`, this rank's): the round is over and nothing was sent.
+  bool answer(Flight& f, int slot, bool more, TraversalStats& stats) {
+    f.theirs.clear();
+    f.theirIndex.clear();
+    f.theirRank.clear();
+    bool any = more;
+    for (int q = 0; q < m_ranks; ++q) {
+      if (q == m_rank) continue;
+      const std::vector<char> bytes = receiveFrom(q, kAsk + 2 * slot);
+      int32_t header[2];
+      if (bytes.size() < sizeof(header) || (bytes.size() - sizeof(header)) % sizeof(Asked) != 0)
+        MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
+      std::memcpy(header, bytes.data(), sizeof(header));
+      any = any || header[0] != 0;
+      for (size_t at = sizeof(header); at < bytes.size(); at += sizeof(Asked)) {
+        Asked a;
+        std::memcpy(static_cast<void*>(&a), bytes.data() + at, sizeof(Asked));
+        f.theirs.push_back(a.ray);
+        f.theirIndex.push_back(a.index);
+        f.theirRank.push_back(q);
+      }
+    }
+    if (f.shadow && !any) return false;
+    std::vector<Found> answers(f.theirs.size());
+    parallel(f.theirs.size(), stats, [&](size_t k, TraversalStats& s) {
+      Ray r = f.theirs[k];
       r.mask = World::kVolumeMask;
-      answers[k] = m_world.occluded(r, s) ? 1 : 0;
+      answers[k].index = f.theirIndex[k];
+      answers[k].found = f.shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
     });
-    std::vector<std::vector<int>> back(static_cast<size_t>(m_ranks));
-    for (size_t k = 0; k < answers.size(); ++k)
-      if (answers[k]) back[size_t(m_theirRank[k])].push_back(m_theirIndex[k]);
-    for (const std::vector<int>& indices : sendAll(back))
-      for (int i : indices) blocked[size_t(i)] = 1;
+    // Back to the rank that asked: the hits found with the index of the ray in its flight (a
+    // shadow ray: the index alone, of the rays found blocked).
+    f.backs.resize(size_t(m_ranks));
+    for (std::vector<char>& bytes : f.backs) bytes.clear();
+    for (size_t k = 0; k < answers.size(); ++k) {
+      if (!answers[k].found) continue;
+      std::vector<char>& bytes = f.backs[size_t(f.theirRank[k])];
+      if (f.shadow)
+        append(bytes, answers[k].index);
+      else
+        append(bytes, answers[k]);
+    }
+    for (int q = 0; q < m_ranks; ++q)
+      if (q != m_rank) post(f.backs[size_t(q)], q, kAsk + 1 + 2 * slot);
+    return true;
+  }
+
+  // Step 3: the other ranks' answers. Then f.found and f.hits are those of the whole scene: the
+  // closest hit, of equal ones the lowest rank's; a shadow ray blocked if any rank blocks it.
+  void gather(Flight& f, int slot) {
+    const size_t n = f.rays.size();
+    for (int q = 0; q < m_ranks; ++q) {
+      if (q == m_rank) continue;
+      const std::vector<char> bytes = receiveFrom(q, kAsk + 1 + 2 * slot);
+      const size_t size = f.shadow ? sizeof(int) : sizeof(Found);
+      if (bytes.size() % size != 0) MPI_Abort(MPI_COMM_WORLD, 1);
+      for (size_t at = 0; at < bytes.size(); at += size) {
+        Found a;
+        if (f.shadow)
+          std::memcpy(&a.index, bytes.data() + at, sizeof(int));
+        else
+          std::memcpy(static_cast<void*>(&a), bytes.data() + at, sizeof(Found));
+        const size_t i = size_t(a.index);
+        if (a.index < 0 || i >= n) MPI_Abort(MPI_COMM_WORLD, 1);
+        if (f.shadow) {
+          f.found[i] = 1;
+        } else if (!f.found[i] || a.hit.t < f.hits[i].t || (a.hit.t == f.hits[i].t && q < f.from[i])) {
+          f.hits[i] = a.hit;
+          f.found[i] = 1;
+          f.from[i] = q;
+        }
+      }
+    }
+  }
+
+  // Whether the messages the next step of slot `slot` needs (`back`: answers, for gather; or
+  // rays, for answer) have come from every other rank.
+  bool arrived(int slot, bool back) {
+    for (int q = 0; q < m_ranks; ++q) {
+      int flag = 1;
+      if (q != m_rank) MPI_Iprobe(q, kAsk + (back ? 1 : 0) + 2 * slot, MPI_COMM_WORLD, &flag, MPI_STATUS_IGNORE);
+      if (!flag) return false;
+    }
+    return true;
+  }
+  // Time spent looking for messages that had not come (`since`: when the look began).
+  void waited(Clock::time_point since) {
+    m_outbox.progress();
+    waitSeconds += iso::since(since);
+  }
+  // Waits until every message this rank sent is taken.
+  void drain() {
+    const auto t0 = Clock::now();
+    m_outbox.drain();
+    waitSeconds += since(t0);
+  }
+
+  // The rank that renders each tile. The tiles whose centre ray passes through a volume box are
+  // dealt first, each to the rank whose box that ray enters first while it has fewer than its
+  // share of them (their number over the ranks, rounded up), the rest of them to the ranks with
+  // room in turn; then the tiles that see no volume box, in turn, to the ranks with the fewest
+  // tiles. A rank's camera rays then mostly find their hits in its own part and go nowhere else
+  // (dealt t mod N, half of them entered the other rank's box first), and every rank has about as
+  // many tiles of each kind.
+  std::vector<int> tileOwners(const TileRenderer& tiles, const Camera& camera) const {
+    const int n = tiles.tiles();
+    std::vector<int> owner(size_t(n), -1), first(size_t(n), -1), count(size_t(m_ranks), 0);
+    int seeing = 0;  // tiles whose centre ray passes through a box
+    for (int t = 0; t < n; ++t) {
+      const TileRenderer::Rect r = tiles.rect(t);
+      const Ray ray = camera.generateRay(0.5f * float(r.x0 + r.x1), 0.5f * float(r.y0 + r.y1));
+      double firstT = INFINITY, enters = 0;
+      for (int q = 0; q < m_ranks; ++q)
+        if (reaches(ray, q, &enters) && enters < firstT) {
+          first[size_t(t)] = q;
+          firstT = enters;
+        }
+      if (first[size_t(t)] >= 0) ++seeing;
+    }
+    const int share = (seeing + m_ranks - 1) / m_ranks;
+    for (int t = 0; t < n; ++t) {
+      const int q = first[size_t(t)];
+      if (q >= 0 && count[size_t(q)] < share) {
+        owner[size_t(t)] = q;
+        ++count[size_t(q)];
+      }
+    }
+    // The rest, each to the rank with the fewest tiles so far (the lowest of equal ones).
+    for (bool seen : {true, false})
+      for (int t = 0; t < n; ++t) {
+        if (owner[size_t(t)] >= 0 || (first[size_t(t)] >= 0) != seen) continue;
+        const int q = int(std::min_element(count.begin(), count.end()) - count.begin());
+        owner[size_t(t)] = q;
+        ++count[size_t(q)];
+      }
+    return owner;
   }
 
   // Whether any rank says yes (collective).
@@ -613,61 +751,62 @@ class RankTracer {
   }
 
   // Rays of this rank's paths, their copies sent to other ranks, bytes this rank sent, seconds
-  // it spent in the exchanges (sending, and waiting for the slowest rank).
+  // it spent waiting for other ranks' messages and for its own to be taken.
   double raysAsked = 0, raysSent = 0, bytesSent = 0, waitSeconds = 0;
 
  private:
   struct Found {
     Hit hit;
-    int index = 0;  // of the ray in the asking rank's batch
+    int index = 0;  // of the ray in the asking rank's flight
     int found = 0;
   };
-  // A ray sent to another rank, with its index in this rank's batch.
+  // A ray sent to another rank, with its index in this rank's flight.
   struct Asked {
     Ray ray;
     int index;
   };
 
-  // Whether the segment of `r` passes through rank q's volume box (padded for rounding).
-  bool reaches(const Ray& r, int q) const {
+  template <typename T>
+  static void append(std::vector<char>& bytes, const T& value) {
+    const char* p = reinterpret_cast<const char*>(&value);
+    bytes.insert(bytes.end(), p, p + sizeof(T));
+  }
+
+  void post(std::vector<char>& bytes, int to, int tag) {
+    bytesSent += double(bytes.size());
+    m_outbox.send(std::move(bytes), to, tag);
+    bytes.clear();
+  }
+
+  std::vector<char> receiveFrom(int q, int tag) {
+    const auto t0 = Clock::now();
+    MPI_Status status;
+    MPI_Probe(q, tag, MPI_COMM_WORLD, &status);
+    std::vector<char> bytes = receive(status);
+    waitSeconds += since(t0);
+    return bytes;
+  }
+
+  // Whether the segment of `r` passes through rank q's volume box (padded for rounding), and
+  // where it enters it (`enters`, a parameter of `r`).
+  bool reaches(const Ray& r, int q, double* enters = nullptr) const {
     const Vec3d lo = m_lower[size_t(q)], hi = m_upper[size_t(q)];
     if (!(lo.x <= hi.x)) return false;
     const Vec3d o = r.origin(), d(r.dir);
     double t0 = r.tnear, t1 = r.tfar;
     for (int a = 0; a < 3; ++a) {
-      const double pad = 1e-6 * (std::fabs(lo[a]) + std::fabs(hi[a]) + (hi[a] - lo[a])) + 1e-9;
-      const double l = lo[a] - pad, h = hi[a] + pad;
       if (d[a] == 0) {
-        if (o[a] < l || o[a] > h) return false;
+        if (o[a] < lo[a] || o[a] > hi[a]) return false;
         continue;
       }
-      double ta = (l - o[a]) / d[a], tb = (h - o[a]) / d[a];
+      const double inv = 1 / d[a];
+      double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
       if (ta > tb) std::swap(ta, tb);
       t0 = std::max(t0, ta);
       t1 = std::min(t1, tb);
     }
+    if (enters) *enters = t0;
     return t0 <= t1 * (1 + 1e-6) + 1e-9;
-  }
-
-  // Each of `rays` (but those `skip` says) to the other ranks it reaches; the rays other ranks
-  // sent here into m_theirs.
-  void exchange(const std::vector<Ray>& rays, const std::vector<char>* skip) {
-    std::vector<std::vector<Asked>> out(static_cast<size_t>(m_ranks));
-    for (size_t i = 0; i < rays.size(); ++i)
-      for (int q = 0; q < m_ranks; ++q)
-        if (q != m_rank && !(skip && (*skip)[i]) && reaches(rays[i], q)) out[size_t(q)].push_back({rays[i], int(i)});
-    raysAsked += double(rays.size());
-    for (int q = 0; q < m_ranks; ++q) raysSent += double(out[size_t(q)].size());
-    const std::vector<std::vector<Asked>> in = sendAll(out);
-    m_theirs.clear();
-    m_theirIndex.clear();
-    m_theirRank.clear();
-    for (int q = 0; q < m_ranks; ++q)
-      for (const Asked& a : in[size_t(q)]) {
-        m_theirs.push_back(a.ray);
-        m_theirIndex.push_back(a.index);
-        m_theirRank.push_back(q);
-      }
   }
 
   // answer(i, stats) for i in [0, n), on this rank's threads.
@@ -682,54 +821,28 @@ class RankTracer {
     });
     for (const TraversalStats& s : local) stats.add(s);
   }
-  template <typename F>
-  void traceMine(const std::vector<Ray>& rays, TraversalStats& stats, F&& answer) {
-    parallel(rays.size(), stats, answer);
-  }
-  template <typename F>
-  void traceTheirs(TraversalStats& stats, F&& answer) {
-    parallel(m_theirs.size(), stats, answer);
-  }
-
-  // out[q] to rank q, for every q (collective); what every rank sent here, by rank.
-  template <typename T>
-  std::vector<std::vector<T>> sendAll(const std::vector<std::vector<T>>& out) {
-    const auto t0 = Clock::now();
-    const size_t n = size_t(m_ranks);
-    std::vector<int> sendBytes(n), sendAt(n), recvBytes(n), recvAt(n);
-    std::vector<char> sendBuffer;
-    for (size_t q = 0; q < n; ++q) {
-      sendAt[q] = int(sendBuffer.size());
-      sendBytes[q] = int(out[q].size() * sizeof(T));
-      const char* p = reinterpret_cast<const char*>(out[q].data());
-      sendBuffer.insert(sendBuffer.end(), p, p + sendBytes[q]);
-      if (q != size_t(m_rank)) bytesSent += sendBytes[q];
-    }
-    MPI_Alltoall(sendBytes.data(), 1, MPI_INT, recvBytes.data(), 1, MPI_INT, MPI_COMM_WORLD);
-    int total = 0;
-    for (size_t q = 0; q < n; ++q) {
-      recvAt[q] = total;
-      total += recvBytes[q];
-    }
-    std::vector<char> recvBuffer(static_cast<size_t>(total));
-    MPI_Alltoallv(sendBuffer.data(), sendBytes.data(), sendAt.data(), MPI_BYTE, recvBuffer.data(), recvBytes.data(),
-                  recvAt.data(), MPI_BYTE, MPI_COMM_WORLD);
-    std::vector<std::vector<T>> in(n);
-    for (size_t q = 0; q < n; ++q) {
-      in[q].resize(size_t(recvBytes[q]) / sizeof(T));
-      std::memcpy(static_cast<void*>(in[q].data()), recvBuffer.data() + recvAt[q], size_t(recvBytes[q]));
-    }
-    waitSeconds += since(t0);
-    return in;
-  }
 
   const World& m_world;
   tbb::task_arena& m_arena;
   int m_rank, m_ranks;
   double m_cell;  // World::largestCell
   std::vector<Vec3d> m_lower, m_upper;
-  std::vector<Ray> m_theirs;  // rays other ranks sent here, and where they came from
-  std::vector<int> m_theirIndex, m_theirRank;
+  Outbox m_outbox;
+};
+
+// A round of paths: a pass's samples of a run of this rank's pixels, in one slot of the pipeline.
+// Its next step: start (the slot's next round, if any, and its camera rays), answer (the other
+// ranks' rays of its flight), gather (their answers, then the paths' next stage); idle when the
+// slot has no more rounds in the pass.
+struct Round {
+  enum Step { kStart, kAnswer, kGather, kIdle } step = kIdle;
+  size_t index = 0;       // of the round in the pass: slot k takes rounds k, k + kSlots, ...
+  bool camera = false;    // in its first stage
+  bool more = false;      // paths still asking for rays (this rank's)
+  size_t p0 = 0, p1 = 0;  // its pixels, of this rank's
+  std::vector<PathState> paths;
+  std::vector<size_t> asking;  // the paths whose rays the flight holds, in its order
+  Flight flight;
 };
 
 }  // namespace
@@ -743,97 +856,147 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   RankTracer tracer(world, arena, rank, ranks);
   tbb::enumerable_thread_specific<RayCounters> counters;
-  RayCounters traced;  // the traversal of the rays this rank answered
+  RayCounters traced;  // the traversal of the rays this rank traced and answered
   // The tiles this rank rendered, and their sums (pixel (x0, y0) first, rows of the tile's width).
   std::vector<int> mine;
   std::vector<PixelSums> sums;
-  std::vector<PathState> paths;
-  std::vector<Ray> rays;
-  std::vector<Hit> hits;
-  std::vector<char> answers;
-  std::vector<size_t> asking;
-  // The paths that asked for a ray (`shadow`: a shadow ray) since the last stage, and their rays.
-  auto collect = [&](bool shadow) {
-    asking.clear();
-    rays.clear();
-    for (size_t i = 0; i < paths.size(); ++i) {
-      PathState& p = paths[i];
-      if (shadow ? !p.shadowing : !p.tracing) continue;
-      (shadow ? p.shadowing : p.tracing) = false;
-      asking.push_back(i);
-      rays.push_back(shadow ? p.shadow : p.ray);
-    }
-  };
-  auto eachAsking = [&](auto&& stage) {
-    arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, asking.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
-        RayCounters& c = counters.local();
-        for (size_t k = r.begin(); k < r.end(); ++k) stage(paths[asking[k]], k, c);
-      });
-    });
-  };
-  // Rank r's tiles are r, r + N, ... All of them take a pass of samples (1, 1, 2, 4, 8, 16, 16,
-  // ... as in one process) before any takes the next, so that a stop request, honoured after
-  // each pass (once the first is done), leaves every pixel sampled. A pass goes through the
-  // tiles in rounds of several at once (8,192 paths in flight, 2.4 MiB), so that the exchanges,
-  // whose cost is mostly per stage, carry many rays each (2,048 paths: the exchanges took twice
-  // as long; 32,768: the paths left the caches, and the frame took as long; docs/BENCHMARKS.md,
-  // "Data-parallel rendering").
-  constexpr int kPathsPerRound = 8192;
   std::vector<std::pair<int, int>> pixels;  // this rank's pixels (x, y), tile by tile; sums alike
-  for (int tile = rank; tile < tiles.tiles(); tile += ranks) {
+  const std::vector<int> owner = tracer.tileOwners(tiles, camera);
+  for (int tile = 0; tile < tiles.tiles(); ++tile) {
+    if (owner[size_t(tile)] != rank) continue;
     const TileRenderer::Rect r = tiles.rect(tile);
     mine.push_back(tile);
     for (int y = r.y0; y < r.y1; ++y)
       for (int x = r.x0; x < r.x1; ++x) pixels.emplace_back(x, y);
   }
   sums.resize(pixels.size());
-  const size_t mostPixels = size_t((tiles.tiles() + ranks - 1) / ranks) * TileRenderer::kTile * TileRenderer::kTile;
+  // stage(path, k, counters) for each path of the round that asked for the k-th ray of its flight.
+  auto eachAsking = [&](Round& round, auto&& stage) {
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, round.asking.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        RayCounters& c = counters.local();
+        for (size_t k = r.begin(); k < r.end(); ++k) stage(round.paths[round.asking[k]], k, c);
+      });
+    });
+  };
+  // The rays the round's paths asked for (shadow rays or the others) into its flight.
+  auto collect = [&](Round& round, bool shadow) {
+    Flight& f = round.flight;
+    f.shadow = shadow;
+    round.asking.clear();
+    f.rays.clear();
+    for (size_t i = 0; i < round.paths.size(); ++i) {
+      PathState& p = round.paths[i];
+      if (shadow ? !p.shadowing : !p.tracing) continue;
+      (shadow ? p.shadowing : p.tracing) = false;
+      round.asking.push_back(i);
+      f.rays.push_back(shadow ? p.shadow : p.ray);
+    }
+  };
+  // The wavefront flow's stages (TileRenderer::renderPassWavefront) for rounds of paths: camera
+  // rays, then shadow rays and continuation rays, until no path of the round on any rank asks for
+  // one. A pass goes through this rank's pixels in rounds of kPathsPerRound paths (as many rounds
+  // on every rank: the busiest one's), kSlots rounds in flight: a rank takes the next step of any
+  // slot whose messages have come, so that while the other ranks answer one round's rays it traces
+  // another's. All tiles take a pass (1, 1, 2, 4, 8, 16, 16, ... samples, as in one process) before
+  // any takes the next, so that a stop request, honoured after each pass (once the first is done),
+  // leaves every pixel sampled. (One round of 8,192 paths at a time, every rank in lockstep: the
+  // exchanges, whose cost is mostly per stage, wanted many rays each — 2,048: twice as long in
+  // them; 32,768: the paths left the caches. docs/BENCHMARKS.md, "Data-parallel rendering".)
+  constexpr int kSlots = 4;
+  constexpr int kPathsPerRound = 2048;
+  std::vector<Round> slots(kSlots);
+  const size_t mostPixels = size_t((tiles.tiles() + ranks - 1) / ranks) * TileRenderer::kTile * TileRenderer::kTile;  // (share)
   for (int pass = 0, s0 = 0; s0 < options.spp; ++pass) {
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp), ns = s1 - s0;
-    // Rounds of kPathsPerRound paths; as many on every rank (the busiest one's).
     const size_t maxPixels = std::max<size_t>(1, size_t(kPathsPerRound) / size_t(ns));
     const size_t rounds = (mostPixels + maxPixels - 1) / maxPixels;
-    for (size_t round = 0; round < rounds; ++round) {
-      const size_t p0 = std::min(pixels.size(), round * maxPixels), p1 = std::min(pixels.size(), p0 + maxPixels);
-      paths.resize((p1 - p0) * size_t(ns));
-      for (size_t pixel = p0; pixel < p1; ++pixel)
+    for (int k = 0; k < kSlots; ++k) {
+      slots[size_t(k)].step = Round::kStart;
+      slots[size_t(k)].index = size_t(k);
+    }
+    // Each pixel's samples in sample order.
+    auto finish = [&](Round& round) {
+      for (size_t pixel = round.p0; pixel < round.p1; ++pixel)
+        for (int s = 0; s < ns; ++s) {
+          PathState& p = round.paths[(pixel - round.p0) * size_t(ns) + size_t(s)];
+          integrator.finish(p);
+          addSample(sums[pixel], p.out, options.alpha);
+        }
+    };
+    auto begin = [&](Round& round) {
+      round.p0 = std::min(pixels.size(), round.index * maxPixels);
+      round.p1 = std::min(pixels.size(), round.p0 + maxPixels);
+      round.paths.resize((round.p1 - round.p0) * size_t(ns));
+      for (size_t pixel = round.p0; pixel < round.p1; ++pixel)
         for (int s = s0; s < s1; ++s) {
           const auto [x, y] = pixels[pixel];
-          PathState& p = paths[(pixel - p0) * size_t(ns) + size_t(s - s0)];
+          PathState& p = round.paths[(pixel - round.p0) * size_t(ns) + size_t(s - s0)];
           Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
           const float jx = sampler.next(), jy = sampler.next();
           p.begin(camera.generateRay(x + jx, y + jy), sampler);
           integrator.start(p);
         }
-      // The wavefront flow's stages (TileRenderer::renderPassWavefront): camera rays, then shadow
-      // rays and continuation rays until no path of any rank asks for one.
-      bool cameraStage = true;
-      for (;;) {
-        if (!cameraStage) {
-          collect(true);
-          tracer.occluded(rays, answers, traced.traversal);
-          eachAsking([&](PathState& p, size_t k, RayCounters&) { integrator.afterShadow(p, answers[k] != 0); });
-        }
-        collect(false);
-        tracer.intersect(rays, hits, answers, traced.traversal, cameraStage);
-        eachAsking([&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, answers[k] != 0, hits[k], c); });
-        cameraStage = false;
-        bool more = false;
-        for (const PathState& p : paths) more = more || p.tracing || p.shadowing;
-        if (!tracer.anyRank(more)) break;
+      round.camera = true;
+      collect(round, false);
+    };
+    // The answers to the round's last stage, then its next stage: shadow rays after closest-hit
+    // rays (or the round's end: see RankTracer::answer), closest-hit rays after shadow rays.
+    auto advance = [&](Round& round, int slot) {
+      Flight& f = round.flight;
+      tracer.gather(f, slot);
+      if (f.shadow) {
+        eachAsking(round, [&](PathState& p, size_t k, RayCounters&) { integrator.afterShadow(p, f.found[k] != 0); });
+        collect(round, false);
+        return;
       }
-      // Each pixel's samples in sample order.
-      for (size_t pixel = p0; pixel < p1; ++pixel)
-        for (int s = 0; s < ns; ++s) {
-          PathState& p = paths[(pixel - p0) * size_t(ns) + size_t(s)];
-          integrator.finish(p);
-          addSample(sums[pixel], p.out, options.alpha);
+      eachAsking(round, [&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, f.found[k] != 0, f.hits[k], c); });
+      round.camera = false;
+      round.more = false;
+      for (const PathState& p : round.paths) round.more = round.more || p.tracing || p.shadowing;
+      collect(round, true);
+    };
+    for (;;) {
+      const auto look = Clock::now();
+      bool open = false, stepped = false;
+      for (int k = 0; k < kSlots; ++k) {
+        Round& round = slots[size_t(k)];
+        if (round.step == Round::kIdle) continue;
+        open = true;
+        if (round.step == Round::kStart) {
+          if (round.index >= rounds) {
+            round.step = Round::kIdle;
+            continue;
+          }
+          begin(round);
+        } else if (round.step == Round::kAnswer) {
+          if (!tracer.arrived(k, false)) continue;
+          stepped = true;
+          if (tracer.answer(round.flight, k, round.more, traced.traversal)) {
+            round.step = Round::kGather;
+          } else {  // the round is over on every rank
+            finish(round);
+            round.index += kSlots;
+            round.step = Round::kStart;
+          }
+          continue;
+        } else {
+          if (!tracer.arrived(k, true)) continue;
+          advance(round, k);
         }
+        stepped = true;
+        tracer.ask(round.flight, k, round.more, round.camera, traced.traversal);
+        round.step = Round::kAnswer;
+      }
+      if (!open) break;
+      if (!stepped) tracer.waited(look);
     }
     s0 = s1;
     if (tracer.anyRank(stopRequested())) break;  // any rank's request: every rank stops here
   }
+  tracer.drain();
+
+
 
   // Rank 0 gathers every rank's tiles.
   RenderResult result;
@@ -894,7 +1057,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   if (rank != 0) return result;
   if (figures) {
     figures->tiles.assign(static_cast<size_t>(ranks), 0);
-    for (int q = 0; q < ranks; ++q) figures->tiles[size_t(q)] = (tiles.tiles() - q + ranks - 1) / ranks;
+    for (int t : owner) ++figures->tiles[size_t(t)];
     figures->raysAsked.clear();
     figures->raysSent.clear();
     figures->bytesSent.clear();
