@@ -57,7 +57,7 @@ struct RankFigures {
   std::vector<double> busySeconds;
   // Data-parallel: per rank, the rays of its paths, their copies it sent to other ranks (those
   // whose volume part a ray passes through), the bytes it sent (rays, and hits back), and the
-  // seconds it spent in the exchanges (busySeconds: the rest of the frame's).
+  // seconds it waited for other ranks' messages (busySeconds: the rest of the frame's).
   std::vector<double> raysAsked, raysSent, bytesSent, waitSeconds;
 };
 
@@ -68,15 +68,16 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 
 // One frame of a data-parallel render ("distribution": "data"): each rank's World holds only its
-// part of each volume (SceneDesc::dataPart), and the ranks work in lockstep. Rank r renders tiles
-// r, r + N, ... pass by pass with the wavefront flow's stages; at each stage a rank traces its own
-// rays whole and sends each to the ranks whose volume part it reaches (past its own hit: no
-// further than two cell diagonals), which answer against their iso-surfaces (a closest hit, or
+// part of each volume (SceneDesc::dataPart). Tiles go to the rank whose volume box their centre
+// ray enters first, in equal shares; a rank renders its tiles pass by pass with the wavefront
+// flow's stages, in rounds of paths of which several are in flight. At each stage a rank traces
+// its own rays whole and sends each to the ranks whose volume part it reaches (past its own hit:
+// no further than two cell diagonals), which answer against their iso-surfaces (a closest hit, or
 // whether a shadow segment is blocked); the asker keeps the closest hit (the lower rank on a tie)
 // or "blocked" if any rank is. Every brick is one rank's and a brick's answer is the single
 // process's (tests/data_parallel_test.cpp), so the image is bit for bit renderFrame's. Rank 0
 // gathers the tiles' sums. Collective; `figures` gets per rank its tiles, the rays it asked and
-// sent, the bytes it sent and the seconds it spent in the exchanges (docs/distributed.md).
+// sent, the bytes it sent and the seconds it waited for messages (docs/distributed.md).
 RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                      const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 
