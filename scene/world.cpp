@@ -503,9 +503,10 @@ RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
 }
 
 // This rank's window of volume v. A procedural field is evaluated twice, once for its bricks'
-// ranges (nothing kept) and once for the window; a raw file (plain or gzip) is read twice, for
-// the ranges and for the window: the rank never holds more than its window (and a gzip file's
-// compressed bytes). Other files are read whole and the window cut from them (docs/distributed.md).
+// ranges (nothing kept) and once for the window; a file whose samples lie in runs of bytes (raw,
+// NRRD, MetaImage: fileBrickRanges) is read twice, for the ranges and for the window: the rank
+// never holds more than its window (and a compressed file's compressed bytes). Other files are
+// read whole and the window cut from them (docs/distributed.md).
 VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
   const VolumeDesc& desc = scene.volumes[v];
   VolumeFile f;
@@ -518,9 +519,9 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
     return f;
   }
   if (!desc.array && !desc.field) {
-    // A raw file: its bricks' ranges first (a plain file read a row of bricks at a time, a gzip
-    // file inflated as one stream), then only the window's samples.
-    if (const std::optional<BrickGrid> ranges = rawBrickRanges(desc.file, desc.layout)) {
+    // Its bricks' ranges first (the files read or inflated in order, a layer at a time), then
+    // only the window's samples.
+    if (const std::optional<BrickGrid> ranges = fileBrickRanges(desc.file, desc.layout)) {
       const RankBox box = rankBox(scene, v, *ranges);
       const SampleWindow window{box.windowFirst(), box.windowExtent(ranges->dims())};
       f = readVolumeFile(desc.file, desc.layout, desc.part, &window);

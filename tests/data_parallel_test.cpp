@@ -6,8 +6,10 @@
 // exactly when it is for some rank, so that a render split over ranks can give the single
 // process's image.
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -64,6 +66,136 @@ TEST(DataParallel, WindowsReadOnlyTheirSamplesAndEqualTheWholeVolume) {
   }
 }
 
+// The ranges of a volume's file (fileBrickRanges) are the whole grid's.
+void expectRangesOf(const Grid& whole, const std::string& path) {
+  const std::optional<BrickGrid> streamed = fileBrickRanges(path);
+  ASSERT_TRUE(streamed.has_value());
+  const BrickGrid bricks(whole);
+  ASSERT_EQ(streamed->size(), bricks.size());
+  size_t differ = 0;
+  for (uint32_t b = 0; b < bricks.size(); ++b)
+    differ += streamed->brickMin(b) != bricks.brickMin(b) || streamed->brickMax(b) != bricks.brickMax(b);
+  EXPECT_EQ(differ, 0u);
+}
+
+std::string zlibOf(const std::string& bytes) {
+  uLongf size = compressBound(uLong(bytes.size()));
+  std::string out(size, '\0');
+  EXPECT_EQ(compress2(reinterpret_cast<Bytef*>(out.data()), &size, reinterpret_cast<const Bytef*>(bytes.data()),
+                      uLong(bytes.size()), 6),
+            Z_OK);
+  out.resize(size);
+  return out;
+}
+
+std::string fileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// NRRD and MetaImage files whose samples lie in runs of bytes are split like raw files: a rank
+// reads only its window, and the ranges from the files in order, a layer at a time. Every layout:
+// attached or detached data, one data file or one per slice, raw or compressed, byte skips (from
+// the end too), big-endian samples, a MetaImage's LOCAL or compressed data, and the real files.
+TEST(DataParallel, NrrdAndMetaImageWindowsAreReadAlone) {
+  const std::string dir = test::scratchDir();
+  const std::string neghip = fileBytes(test::dataPath("volumes/neghip_64x64x64_uint8.raw"));
+  const std::string head = "dimension: 3\ntype: uchar\nsizes: 64 64 64\nspacings: 1.5 2 2.5\n";
+  test::writeText(dir + "/attached.nrrd", "NRRD0004\n" + head + "encoding: raw\nbyte skip: 7\n\n" + std::string(7, 'j') + neghip);
+  test::writeText(dir + "/attached_gz.nrrd", "NRRD0004\n" + head + "encoding: gzip\nbyte skip: 5\n\n" + zlibOf("12345" + neghip));
+  test::writeText(dir + "/end.raw.data", std::string(13, 'j') + neghip);
+  test::writeText(dir + "/end.nhdr", "NRRD0004\n" + head + "encoding: raw\nbyte skip: -1\ndata file: end.raw.data\n");
+  // headsq's int16 samples, big-endian, in one detached file.
+  const Grid headsq = readVolumeFile(test::dataPath("volumes/headsq/quarter.nhdr")).grid;
+  std::string big;
+  for (int z = 0; z < headsq.dims().z; ++z)
+    for (int y = 0; y < headsq.dims().y; ++y)
+      for (int x = 0; x < headsq.dims().x; ++x) {
+        const int16_t v = int16_t(headsq.value(x, y, z));
+        big += char(uint16_t(v) >> 8);
+        big += char(uint16_t(v) & 0xff);
+      }
+  test::writeText(dir + "/big.bin", big);
+  test::writeText(dir + "/big.nhdr", "NRRD0004\ndimension: 3\ntype: short\nsizes: 64 64 93\nendian: big\nencoding: raw\ndata file: big.bin\n");
+  const std::string meta = "NDims = 3\nDimSize = 64 64 64\nElementType = MET_UCHAR\nElementSpacing = 1 2 3\nOffset = 10 20 30\n";
+  test::writeText(dir + "/local.mhd", meta + "ElementDataFile = LOCAL\n" + neghip);
+  test::writeText(dir + "/packed.zraw", zlibOf(neghip));
+  test::writeText(dir + "/packed.mhd", meta + "CompressedData = True\nElementDataFile = packed.zraw\n");
+  test::writeText(dir + "/skipped.raw", std::string(21, 'j') + neghip);
+  test::writeText(dir + "/skipped.mhd", meta + "HeaderSize = -1\nElementDataFile = skipped.raw\n");
+  for (const std::string& path :
+       {dir + "/attached.nrrd", dir + "/attached_gz.nrrd", dir + "/end.nhdr", dir + "/big.nhdr", dir + "/local.mhd",
+        dir + "/packed.mhd", dir + "/skipped.mhd", test::dataPath("volumes/headsq/quarter.nhdr"),
+        test::dataPath("volumes/nucleon/nucleon.nrrd"), test::dataPath("volumes/HeadMRVolume.mhd")}) {
+    SCOPED_TRACE(path);
+    const Grid whole = readVolumeFile(path).grid;
+    if (path.find(dir) == 0 && path.find("big") == std::string::npos) {  // the neghip ones
+      ASSERT_EQ(whole.bytes(), neghip.size());
+      EXPECT_EQ(std::memcmp(whole.data(), neghip.data(), neghip.size()), 0);
+    }
+    expectRangesOf(whole, path);
+    for (int ranks : {2, 3})
+      for (const RankBox& box : boxesOf(whole, 0.5f * (BrickGrid(whole).minValue() + BrickGrid(whole).maxValue()), ranks)) {
+        const SampleWindow w{box.windowFirst(), box.windowExtent(whole.dims())};
+        const VolumeFile window = readVolumeFile(path, {}, {}, &w);
+        expectWindowOf(whole, window.grid, w);
+        EXPECT_TRUE(window.grid.origin() == whole.origin());
+        EXPECT_TRUE(window.grid.spacing() == whole.spacing());
+      }
+  }
+  // What is not in runs is read whole and cut, as before: ASCII data, line skips.
+  test::writeText(dir + "/ascii.nrrd", "NRRD0004\ndimension: 3\ntype: uchar\nsizes: 2 2 2\nencoding: ascii\n\n1 2 3 4 5 6 7 8\n");
+  EXPECT_FALSE(fileBrickRanges(dir + "/ascii.nrrd").has_value());
+  const SampleWindow all{{0, 0, 0}, {2, 2, 2}};
+  EXPECT_EQ(readVolumeFile(dir + "/ascii.nrrd", {}, {}, &all).grid.value(1, 1, 1), 8.f);
+}
+
+// A rank opens only the files that hold its window's rows: a NRRD's slice files outside it may
+// even be missing. A file the window needs that is short or corrupt is one error naming it.
+TEST(DataParallel, ARankReadsOnlyTheSliceFilesOfItsWindow) {
+  namespace fs = std::filesystem;
+  const std::string dir = test::scratchDir() + "/headsq";
+  fs::create_directories(dir);
+  for (const auto& e : fs::directory_iterator(test::dataPath("volumes/headsq")))
+    fs::copy_file(e.path(), dir + "/" + e.path().filename().string(), fs::copy_options::overwrite_existing);
+  const std::string nhdr = dir + "/quarter.nhdr";
+  const Grid whole = readVolumeFile(nhdr).grid;
+  fs::remove(dir + "/quarter.93");  // the last slice
+  EXPECT_THROW(readVolumeFile(nhdr), InputError);
+  EXPECT_THROW(fileBrickRanges(nhdr), InputError);
+  const SampleWindow low{{0, 0, 0}, {64, 64, 60}};
+  expectWindowOf(whole, readVolumeFile(nhdr, {}, {}, &low).grid, low);
+  // Slice 40 cut short: the window that needs it names it; one that does not is read.
+  test::writeText(dir + "/quarter.40", std::string(100, 'x'));
+  const SampleWindow upper{{0, 0, 30}, {64, 64, 20}};
+  try {
+    readVolumeFile(nhdr, {}, {}, &upper);
+    ADD_FAILURE() << "a short slice file was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("quarter.40"), std::string::npos) << e.what();
+  }
+  const SampleWindow lower{{0, 0, 0}, {64, 64, 39}};
+  expectWindowOf(whole, readVolumeFile(nhdr, {}, {}, &lower).grid, lower);
+  // A compressed MetaImage stream cut short, a header asking for more than its stream can hold.
+  const std::string neghip = fileBytes(test::dataPath("volumes/neghip_64x64x64_uint8.raw"));
+  const std::string packed = zlibOf(neghip);
+  test::writeText(dir + "/cut.zraw", packed.substr(0, packed.size() / 2));
+  test::writeText(dir + "/cut.mhd", "NDims = 3\nDimSize = 64 64 64\nElementType = MET_UCHAR\nCompressedData = True\nElementDataFile = cut.zraw\n");
+  const SampleWindow some{{0, 0, 10}, {64, 64, 20}};
+  for (const std::string& path : {dir + "/cut.mhd"}) {
+    try {
+      readVolumeFile(path, {}, {}, &some);
+      ADD_FAILURE() << "a cut stream was read";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("cut.zraw"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(fileBrickRanges(path), InputError);
+  }
+  test::writeText(dir + "/bomb.mhd", "NDims = 3\nDimSize = 100000 100000 1000\nElementType = MET_FLOAT\nCompressedData = True\nElementDataFile = cut.zraw\n");
+  EXPECT_THROW(fileBrickRanges(dir + "/bomb.mhd"), InputError);
+  EXPECT_THROW(readVolumeFile(dir + "/bomb.mhd", {}, {}, &some), InputError);
+}
+
 // A procedural field's rank makes only its window, after a pass over the field that keeps only
 // the bricks' ranges: both the same bits as from the whole grid.
 TEST(DataParallel, ProceduralWindowsAndRangesEqualTheWholeFields) {
@@ -94,7 +226,7 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
   const std::string path = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
   const Grid whole = readVolumeFile(path).grid;
   const BrickGrid bricks(whole);
-  const std::optional<BrickGrid> streamed = rawBrickRanges(path);
+  const std::optional<BrickGrid> streamed = fileBrickRanges(path);
   ASSERT_TRUE(streamed.has_value());
   ASSERT_EQ(streamed->size(), bricks.size());
   for (uint32_t b = 0; b < bricks.size(); ++b) {
@@ -105,7 +237,7 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
   const std::string gz = test::dataPath("volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz");
   const Grid ct = readVolumeFile(gz).grid;
   const BrickGrid ctBricks(ct);
-  const std::optional<BrickGrid> ctStreamed = rawBrickRanges(gz);
+  const std::optional<BrickGrid> ctStreamed = fileBrickRanges(gz);
   ASSERT_TRUE(ctStreamed.has_value());
   ASSERT_EQ(ctStreamed->size(), ctBricks.size());
   size_t differ = 0;
@@ -113,18 +245,18 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
     differ += ctStreamed->brickMin(b) != ctBricks.brickMin(b) || ctStreamed->brickMax(b) != ctBricks.brickMax(b);
   EXPECT_EQ(differ, 0u);
   // Other formats are read whole (then cut).
-  EXPECT_FALSE(rawBrickRanges(test::dataPath("volumes/nucleon/nucleon.nrrd")).has_value());
+  EXPECT_FALSE(fileBrickRanges(test::dataPath("volumes/ironProt.vtk")).has_value());
   // A file shorter than its name says, a gzip stream cut short: one error naming it.
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/short_16x16x16_uint8.raw", std::string(100, 'x'));
-  EXPECT_THROW(rawBrickRanges(dir + "/short_16x16x16_uint8.raw"), InputError);
+  EXPECT_THROW(fileBrickRanges(dir + "/short_16x16x16_uint8.raw"), InputError);
   {
     std::ifstream in(gz, std::ios::binary);
     const std::string whole((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     test::writeText(dir + "/cut_256x256x133_uint8.raw.gz", whole.substr(0, whole.size() / 2));
   }
   try {
-    rawBrickRanges(dir + "/cut_256x256x133_uint8.raw.gz");
+    fileBrickRanges(dir + "/cut_256x256x133_uint8.raw.gz");
     ADD_FAILURE() << "a gzip stream cut short was read";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("cut_256x256x133_uint8.raw.gz"), std::string::npos) << e.what();

@@ -184,8 +184,8 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
                    {"shape": "quad", "transform": {"scale": 1500, "translate": [250, 0, 0]}, "material": "floor"}],
         "volumes": [{"file": ")" + data + R"(volumes/neghip_64x64x64_uint8.raw", "spacing": [5, 5, 5], "transform": {"translate": [450, 0, -160]},
                      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100, "material": "red"}]},
-                    {"file": ")" + data + R"(volumes/hydrogen_atom_128x128x128_uint8.raw", "spacing": [2, 2, 2], "transform": {"translate": [-300, 0, -100]},
-                     "isosurfaces": [{"value": 20, "material": "red"}]}], )" + materials + "}"}};
+                    {"file": ")" + data + R"(volumes/headsq/quarter.nhdr", "transform": {"translate": [-300, 0, -100]},
+                     "isosurfaces": [{"value": 1150, "material": "red"}]}], )" + materials + "}"}};
   for (const auto& [name, text] : scenes) {
     SCOPED_TRACE(name);
     test::writeText(dir + "/" + name + ".json", text);

@@ -339,8 +339,20 @@ std::string formatSliceName(const std::string& pattern, long index, const std::s
   return pattern.substr(0, percent) + number + pattern.substr(end + 1);
 }
 
-Grid loadNrrd(const std::string& path) {
-  const Bytes bytes = readFile(path);
+// A NRRD header: the samples' layout and where they are; the data is not read. `bytes`: the whole
+// file, or its first part (`whole` false): then nullopt if the header does not end in it.
+struct NrrdHeader {
+  Vec3i dims;
+  ScalarType type = ScalarType::UInt8;
+  enum class Enc { Raw, Gzip, Ascii } enc = Enc::Raw;
+  bool bigEndian = false;
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  long lineSkip = 0, byteSkip = 0;  // byte skip -1: the data is at the end (raw encoding only)
+  size_t dataStart = 0;             // attached data: its first byte in the file
+  std::vector<std::string> files;   // the data files (paths); none: the data is attached
+};
+
+std::optional<NrrdHeader> readNrrdHeader(const std::string& path, const Bytes& bytes, bool whole) {
   // The header ends at the first empty line (attached data follows) or at the end of file.
   size_t pos = 0, lineNo = 0, dataStart = bytes.size();
   bool attached = false;
@@ -355,6 +367,7 @@ Grid loadNrrd(const std::string& path) {
     if (line.empty()) { attached = true; dataStart = std::min(pos, bytes.size()); break; }
     lines.emplace_back(lineNo, line);
   }
+  if (!attached && !whole) return std::nullopt;
   if (lines.empty() || lines[0].second.rfind("NRRD000", 0) != 0)
     throw InputError(path, "line 1", "not a NRRD file (missing 'NRRD000x' magic)");
 
@@ -381,43 +394,39 @@ Grid loadNrrd(const std::string& path) {
     return fields[key].second;
   };
 
+  NrrdHeader h;
   const std::string dimension = require("dimension");
   if (dimension != "3")
     throw InputError(path, where("dimension"), "only 3-dimensional NRRD volumes are supported");
-  ScalarType type;
   const std::string typeName = lower(require("type"));
-  if (!nrrdType(typeName, type))
+  if (!nrrdType(typeName, h.type))
     throw InputError(path, where("type"), "unsupported type '" + typeName +
                                               "' (supported: uchar, ushort, short, float)");
-  const Vec3i dims = toDims(parseNumbers(require("sizes"), path, where("sizes"), 3), path,
-                            where("sizes"));
+  h.dims = toDims(parseNumbers(require("sizes"), path, where("sizes"), 3), path, where("sizes"));
   const std::string encoding = lower(require("encoding"));
-  enum class Enc { Raw, Gzip, Ascii } enc;
-  if (encoding == "raw") enc = Enc::Raw;
-  else if (encoding == "gzip" || encoding == "gz") enc = Enc::Gzip;
-  else if (encoding == "ascii" || encoding == "text" || encoding == "txt") enc = Enc::Ascii;
+  using Enc = NrrdHeader::Enc;
+  if (encoding == "raw") h.enc = Enc::Raw;
+  else if (encoding == "gzip" || encoding == "gz") h.enc = Enc::Gzip;
+  else if (encoding == "ascii" || encoding == "text" || encoding == "txt") h.enc = Enc::Ascii;
   else throw InputError(path, where("encoding"), "unsupported encoding '" + encoding +
                                                      "' (supported: raw, gzip, ascii)");
-  bool bigEndian = false;
   if (fields.count("endian")) {
     const std::string e = lower(fields["endian"].second);
     if (e != "little" && e != "big")
       throw InputError(path, where("endian"), "endian must be 'little' or 'big'");
-    bigEndian = e == "big";
+    h.bigEndian = e == "big";
   }
-  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
   if (fields.count("spacings")) {
     auto s = parseNumbers(fields["spacings"].second, path, where("spacings"), 3);
-    spacing = {s[0], s[1], s[2]};
+    h.spacing = {s[0], s[1], s[2]};
   } else if (fields.count("space directions")) {
     auto s = parseNumbers(fields["space directions"].second, path, where("space directions"), 9);
-    spacing = {std::hypot(s[0], s[1], s[2]), std::hypot(s[3], s[4], s[5]),
-               std::hypot(s[6], s[7], s[8])};
+    h.spacing = {std::hypot(s[0], s[1], s[2]), std::hypot(s[3], s[4], s[5]), std::hypot(s[6], s[7], s[8])};
   }
-  checkSpacing(spacing, path, fields.count("spacings") ? where("spacings") : "header");
+  checkSpacing(h.spacing, path, fields.count("spacings") ? where("spacings") : "header");
   if (fields.count("space origin")) {
     auto o = parseNumbers(fields["space origin"].second, path, where("space origin"), 3);
-    origin = {o[0], o[1], o[2]};
+    h.origin = {o[0], o[1], o[2]};
   }
   // Skips are whole numbers no larger than a file can be (-1 for byte skip: the data is at the end).
   auto skip = [&](const char* key, double lowest) -> long {
@@ -428,35 +437,84 @@ Grid loadNrrd(const std::string& path) {
                                              (lowest < 0 ? "-1" : "0") + " to 1e15");
     return long(v);
   };
-  const long lineSkip = skip("line skip", 0), byteSkip = skip("byte skip", -1);
-  if (byteSkip == -1 && enc != Enc::Raw)
+  h.lineSkip = skip("line skip", 0);
+  h.byteSkip = skip("byte skip", -1);
+  if (h.byteSkip == -1 && h.enc != Enc::Raw)
     throw InputError(path, where("byte skip"), "'byte skip: -1' is only valid with raw encoding");
+  const size_t totalBytes = checkedBytes(h.dims, h.type, path);
 
-  const size_t totalBytes = checkedBytes(dims, type, path);
+  if (!fields.count("data file")) {
+    if (!attached) throw InputError(path, "header", "no attached data and no 'data file' field");
+    h.dataStart = dataStart;
+    return h;
+  }
+  const std::string value = fields["data file"].second;
+  const std::string w = where("data file");
+  std::vector<std::string> files;
+  std::istringstream in(value);
+  std::vector<std::string> tokens;
+  for (std::string t; in >> t;) tokens.push_back(t);
+  if (!tokens.empty() && lower(tokens[0]) == "list") {
+    files = listFiles;
+    if (files.empty()) throw InputError(path, w, "'data file: LIST' is followed by no file names");
+  } else if (tokens.size() >= 4 && value.find('%') != std::string::npos) {
+    // "PATTERN MIN MAX STEP": whole numbers, and no more files than slices.
+    long long range[3];
+    for (int k = 0; k < 3; ++k) {
+      char* end = nullptr;
+      errno = 0;
+      range[k] = std::strtoll(tokens[size_t(k) + 1].c_str(), &end, 10);
+      if (end == tokens[size_t(k) + 1].c_str() || *end != 0 || errno == ERANGE || std::llabs(range[k]) > 1000000000LL)
+        throw InputError(path, w, "'" + tokens[size_t(k) + 1].substr(0, 32) +
+                                      "' is not a whole number from -1e9 to 1e9 (data file: PATTERN MIN MAX STEP)");
+    }
+    const long long first = range[0], last = range[1], step = range[2];
+    // (last - first) / step truncates towards 0: a range like 5 3 5 must be caught by its ends.
+    if (step == 0 || (step > 0 ? last < first : last > first)) throw InputError(path, w, "empty or endless file range");
+    const long long n = (last - first) / step + 1;
+    if (n > h.dims.z) throw InputError(path, w, std::to_string(n) + " data files for " + std::to_string(h.dims.z) + " slices");
+    for (long long i = first; step > 0 ? i <= last : i >= last; i += step)
+      files.push_back(formatSliceName(tokens[0], long(i), path, w));
+  } else {
+    files.push_back(value);
+  }
+  if (totalBytes % files.size() != 0)
+    throw InputError(path, w, std::to_string(files.size()) + " data files do not divide the " +
+                                  std::to_string(totalBytes) + " bytes of the volume evenly");
+  const fs::path dir = fs::path(path).parent_path();
+  for (const std::string& f : files) h.files.push_back((dir / f).lexically_normal().string());
+  return h;
+}
+
+Grid loadNrrd(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  const NrrdHeader h = *readNrrdHeader(path, bytes, true);
+  using Enc = NrrdHeader::Enc;
+  const size_t totalBytes = checkedBytes(h.dims, h.type, path);
 
   // Decodes one data chunk (the attached data, or one data file) after its skips.
   auto decode = [&](Bytes chunk, const std::string& chunkName, size_t expectBytes) -> Bytes {
     size_t p = 0;
-    for (long l = 0; l < lineSkip; ++l) {
+    for (long l = 0; l < h.lineSkip; ++l) {
       if (p >= chunk.size()) throw InputError(chunkName, "", "line skip runs past the end of the data");
       while (p < chunk.size() && chunk[p] != '\n') ++p;
       if (p < chunk.size()) ++p;
     }
     chunk.erase(chunk.begin(), chunk.begin() + std::min(p, chunk.size()));
-    if (enc == Enc::Gzip) chunk = inflateBytes(chunk, chunkName, expectBytes + size_t(std::max(byteSkip, 0L)));
-    if (byteSkip == -1) {
+    if (h.enc == Enc::Gzip) chunk = inflateBytes(chunk, chunkName, expectBytes + size_t(std::max(h.byteSkip, 0L)));
+    if (h.byteSkip == -1) {
       if (chunk.size() < expectBytes)
         throw InputError(chunkName, "", "data has " + std::to_string(chunk.size()) +
                                             " bytes, header needs " + std::to_string(expectBytes));
       chunk.erase(chunk.begin(), chunk.end() - long(expectBytes));
-    } else if (byteSkip > 0) {
-      if (size_t(byteSkip) > chunk.size())
+    } else if (h.byteSkip > 0) {
+      if (size_t(h.byteSkip) > chunk.size())
         throw InputError(chunkName, "", "byte skip runs past the end of the data");
-      chunk.erase(chunk.begin(), chunk.begin() + byteSkip);
+      chunk.erase(chunk.begin(), chunk.begin() + h.byteSkip);
     }
-    if (enc == Enc::Ascii) {
-      const size_t n = expectBytes / scalarTypeSize(type);
-      return asciiToBytes(std::string(chunk.begin(), chunk.end()), type, n, chunkName);
+    if (h.enc == Enc::Ascii) {
+      const size_t n = expectBytes / scalarTypeSize(h.type);
+      return asciiToBytes(std::string(chunk.begin(), chunk.end()), h.type, n, chunkName);
     }
     if (chunk.size() != expectBytes)
       throw InputError(chunkName, "", "data has " + std::to_string(chunk.size()) +
@@ -466,70 +524,47 @@ Grid loadNrrd(const std::string& path) {
   };
 
   Bytes data;
-  const fs::path dir = fs::path(path).parent_path();
-  if (!fields.count("data file")) {
-    if (!attached && dataStart >= bytes.size())
-      throw InputError(path, "header", "no attached data and no 'data file' field");
-    data = decode(Bytes(bytes.begin() + long(dataStart), bytes.end()), path, totalBytes);
+  if (h.files.empty()) {
+    data = decode(Bytes(bytes.begin() + long(h.dataStart), bytes.end()), path, totalBytes);
   } else {
-    const std::string value = fields["data file"].second;
-    const std::string w = where("data file");
-    std::vector<std::string> files;
-    std::istringstream in(value);
-    std::vector<std::string> tokens;
-    for (std::string t; in >> t;) tokens.push_back(t);
-    if (!tokens.empty() && lower(tokens[0]) == "list") {
-      files = listFiles;
-      if (files.empty()) throw InputError(path, w, "'data file: LIST' is followed by no file names");
-    } else if (tokens.size() >= 4 && value.find('%') != std::string::npos) {
-      // "PATTERN MIN MAX STEP": whole numbers, and no more files than slices.
-      long long range[3];
-      for (int k = 0; k < 3; ++k) {
-        char* end = nullptr;
-        errno = 0;
-        range[k] = std::strtoll(tokens[size_t(k) + 1].c_str(), &end, 10);
-        if (end == tokens[size_t(k) + 1].c_str() || *end != 0 || errno == ERANGE || std::llabs(range[k]) > 1000000000LL)
-          throw InputError(path, w, "'" + tokens[size_t(k) + 1].substr(0, 32) +
-                                        "' is not a whole number from -1e9 to 1e9 (data file: PATTERN MIN MAX STEP)");
-      }
-      const long long first = range[0], last = range[1], step = range[2];
-      // (last - first) / step truncates towards 0: a range like 5 3 5 must be caught by its ends.
-      if (step == 0 || (step > 0 ? last < first : last > first)) throw InputError(path, w, "empty or endless file range");
-      const long long n = (last - first) / step + 1;
-      if (n > dims.z) throw InputError(path, w, std::to_string(n) + " data files for " + std::to_string(dims.z) + " slices");
-      for (long long i = first; step > 0 ? i <= last : i >= last; i += step)
-        files.push_back(formatSliceName(tokens[0], long(i), path, w));
-    } else {
-      files.push_back(value);
-    }
-    if (totalBytes % files.size() != 0)
-      throw InputError(path, w, std::to_string(files.size()) + " data files do not divide the " +
-                                    std::to_string(totalBytes) + " bytes of the volume evenly");
-    const size_t per = totalBytes / files.size();
-    for (const auto& f : files) {
-      const std::string full = (dir / f).lexically_normal().string();
+    const size_t per = totalBytes / h.files.size();
+    for (const std::string& full : h.files) {
       Bytes part = decode(readFile(full), full, per);
       // Reserved once a file has proved its size: the header alone allocates nothing.
       if (data.empty()) data.reserve(totalBytes);
       data.insert(data.end(), part.begin(), part.end());
     }
   }
-  Grid g = makeGrid(dims, type, data, bigEndian, path);
-  g.setOrigin(origin);
-  g.setSpacing(spacing);
+  Grid g = makeGrid(h.dims, h.type, data, h.bigEndian, path);
+  g.setOrigin(h.origin);
+  g.setSpacing(h.spacing);
   return g;
 }
 
 // ---------------------------------------------------------------------------------------
 // MetaImage (https://itk.org/Wiki/ITK/MetaIO/Documentation)
 
-Grid loadMetaImage(const std::string& path) {
-  const Bytes bytes = readFile(path);
+// A MetaImage header: the samples' layout and where they are; the data is not read. `bytes`: the
+// whole file, or its first part (`whole` false): then nullopt if the header does not end in it.
+struct MetaHeader {
+  Vec3i dims;
+  ScalarType type = ScalarType::UInt8;
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  bool bigEndian = false, compressed = false;
+  std::string dataFile;  // the file holding the data (the header's own for LOCAL)
+  size_t dataStart = 0;  // where the data begins in it (LOCAL: after the header)
+  long skip = 0;         // HeaderSize: bytes before the samples (-1: the samples are the last bytes)
+  std::string skipWhere;
+};
+
+std::optional<MetaHeader> readMetaHeader(const std::string& path, const Bytes& bytes, bool whole) {
   std::map<std::string, std::pair<size_t, std::string>> fields;
   size_t pos = 0, lineNo = 0;
+  bool ended = false;
   while (pos < bytes.size()) {
     size_t nl = pos;
     while (nl < bytes.size() && bytes[nl] != '\n') ++nl;
+    if (nl == bytes.size() && !whole) return std::nullopt;  // a line cut where the part ends
     const std::string line = trim(std::string(bytes.begin() + pos, bytes.begin() + nl));
     pos = nl + 1;
     ++lineNo;
@@ -539,75 +574,87 @@ Grid loadMetaImage(const std::string& path) {
       throw InputError(path, "line " + std::to_string(lineNo), "expected 'Key = Value'");
     const std::string key = trim(line.substr(0, eq));
     fields[key] = {lineNo, trim(line.substr(eq + 1))};
-    if (key == "ElementDataFile") break;  // by the format, the last header field
+    if (key == "ElementDataFile") {  // by the format, the last header field
+      ended = true;
+      break;
+    }
   }
+  if (!ended && !whole) return std::nullopt;
   auto where = [&](const std::string& key) { return "line " + std::to_string(fields[key].first); };
   auto require = [&](const std::string& key) -> std::string {
     if (!fields.count(key)) throw InputError(path, "header", "missing required field '" + key + "'");
     return fields[key].second;
   };
+  MetaHeader h;
   if (require("NDims") != "3")
     throw InputError(path, where("NDims"), "only 3-dimensional images are supported");
-  const Vec3i dims = toDims(parseNumbers(require("DimSize"), path, where("DimSize"), 3), path,
-                            where("DimSize"));
+  h.dims = toDims(parseNumbers(require("DimSize"), path, where("DimSize"), 3), path, where("DimSize"));
   const std::string typeName = require("ElementType");
-  ScalarType type;
-  if (typeName == "MET_UCHAR") type = ScalarType::UInt8;
-  else if (typeName == "MET_USHORT") type = ScalarType::UInt16;
-  else if (typeName == "MET_SHORT") type = ScalarType::Int16;
-  else if (typeName == "MET_FLOAT") type = ScalarType::Float32;
+  if (typeName == "MET_UCHAR") h.type = ScalarType::UInt8;
+  else if (typeName == "MET_USHORT") h.type = ScalarType::UInt16;
+  else if (typeName == "MET_SHORT") h.type = ScalarType::Int16;
+  else if (typeName == "MET_FLOAT") h.type = ScalarType::Float32;
   else throw InputError(path, where("ElementType"), "unsupported element type '" + typeName +
                                                         "' (supported: MET_UCHAR, MET_USHORT, MET_SHORT, MET_FLOAT)");
   if (fields.count("ElementNumberOfChannels") && fields["ElementNumberOfChannels"].second != "1")
     throw InputError(path, where("ElementNumberOfChannels"), "only single-channel images are supported");
-  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
   for (const char* key : {"ElementSpacing", "ElementSize"}) {
     if (fields.count(key)) {
       auto s = parseNumbers(fields[key].second, path, where(key), 3);
-      spacing = {s[0], s[1], s[2]};
-      checkSpacing(spacing, path, where(key));
+      h.spacing = {s[0], s[1], s[2]};
+      checkSpacing(h.spacing, path, where(key));
       break;
     }
   }
   for (const char* key : {"Offset", "Origin", "Position"}) {
     if (fields.count(key)) {
       auto o = parseNumbers(fields[key].second, path, where(key), 3);
-      origin = {o[0], o[1], o[2]};
+      h.origin = {o[0], o[1], o[2]};
       break;
     }
   }
-  bool bigEndian = false;
   for (const char* key : {"ElementByteOrderMSB", "BinaryDataByteOrderMSB"})
-    if (fields.count(key)) bigEndian = lower(fields[key].second) == "true";
-  const bool compressed = fields.count("CompressedData") && lower(fields["CompressedData"].second) == "true";
+    if (fields.count(key)) h.bigEndian = lower(fields[key].second) == "true";
+  h.compressed = fields.count("CompressedData") && lower(fields["CompressedData"].second) == "true";
   const std::string dataFile = require("ElementDataFile");
-  Bytes data;
   if (dataFile == "LOCAL") {
-    data.assign(bytes.begin() + long(std::min(pos, bytes.size())), bytes.end());
+    h.dataFile = path;
+    h.dataStart = std::min(pos, bytes.size());
   } else if (dataFile.rfind("LIST", 0) == 0 || dataFile.find('%') != std::string::npos) {
     throw InputError(path, where("ElementDataFile"), "multi-file MetaImage data is not supported");
   } else {
-    const std::string full = (fs::path(path).parent_path() / dataFile).lexically_normal().string();
-    data = readFile(full);
+    h.dataFile = (fs::path(path).parent_path() / dataFile).lexically_normal().string();
   }
-  const size_t need = checkedBytes(dims, type, path);
-  long skip = 0;
+  checkedBytes(h.dims, h.type, path);
   if (fields.count("HeaderSize") && dataFile != "LOCAL") {
-    const double v = parseNumbers(fields["HeaderSize"].second, path, where("HeaderSize"), 1)[0];
+    h.skipWhere = where("HeaderSize");
+    const double v = parseNumbers(fields["HeaderSize"].second, path, h.skipWhere, 1)[0];
     if (!(v >= -1 && v <= 1e15) || v != std::floor(v))
-      throw InputError(path, where("HeaderSize"), "HeaderSize must be a whole number from -1 to 1e15");
-    skip = long(v);
+      throw InputError(path, h.skipWhere, "HeaderSize must be a whole number from -1 to 1e15");
+    h.skip = long(v);
   }
+  return h;
+}
+
+Grid loadMetaImage(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  const MetaHeader h = *readMetaHeader(path, bytes, true);
+  Bytes data;
+  if (h.dataFile == path)
+    data.assign(bytes.begin() + long(h.dataStart), bytes.end());
+  else
+    data = readFile(h.dataFile);
+  const size_t need = checkedBytes(h.dims, h.type, path);
   // A compressed stream may hold at most the header's bytes (after a known skip).
-  if (compressed) data = inflateBytes(data, path, skip == -1 ? need * 2 + (1 << 20) : need + size_t(skip));
-  if (skip != 0) {
-    if (skip == -1 && data.size() >= need) data.erase(data.begin(), data.end() - long(need));
-    else if (skip > 0 && size_t(skip) > data.size()) throw InputError(path, where("HeaderSize"), "HeaderSize runs past the end of the data");
-    else if (skip > 0) data.erase(data.begin(), data.begin() + skip);
+  if (h.compressed) data = inflateBytes(data, path, h.skip == -1 ? need * 2 + (1 << 20) : need + size_t(h.skip));
+  if (h.skip != 0) {
+    if (h.skip == -1 && data.size() >= need) data.erase(data.begin(), data.end() - long(need));
+    else if (h.skip > 0 && size_t(h.skip) > data.size()) throw InputError(path, h.skipWhere, "HeaderSize runs past the end of the data");
+    else if (h.skip > 0) data.erase(data.begin(), data.begin() + h.skip);
   }
-  Grid g = makeGrid(dims, type, data, bigEndian, path);
-  g.setOrigin(origin);
-  g.setSpacing(spacing);
+  Grid g = makeGrid(h.dims, h.type, data, h.bigEndian, path);
+  g.setOrigin(h.origin);
+  g.setSpacing(h.spacing);
   return g;
 }
 
@@ -876,45 +923,6 @@ VolumeFile loadNifti(const std::string& path) {
 
 // Raw files are read straight into the grid's storage (one read, no intermediate copy: peak
 // memory is the grid itself); gzip-compressed ones are inflated straight into it.
-// The window of a raw file's samples, read without the rest: a plain file's rows of the window
-// by their byte ranges, a gzip stream inflated whole but only the window's rows kept.
-Grid loadRawWindow(const std::string& path, std::ifstream& in, bool gzip, const Vec3i& dims, ScalarType type,
-                   bool bigEndian, const SampleWindow& w) {
-  const size_t size = scalarTypeSize(type), expected = checkedBytes(dims, type, path);
-  const size_t row = size_t(w.extent.x) * size, rows = size_t(w.extent.y) * size_t(w.extent.z);
-  std::shared_ptr<uint8_t[]> samples = allocateSamples(row * rows);
-  uint8_t* dst = samples.get();
-  // The file offset of the window's row r (y fastest, then z).
-  auto rowStart = [&](size_t r) {
-    const size_t y = size_t(w.first.y) + r % size_t(w.extent.y), z = size_t(w.first.z) + r / size_t(w.extent.y);
-    return ((z * size_t(dims.y) + y) * size_t(dims.x) + size_t(w.first.x)) * size;
-  };
-  if (!gzip) {
-    for (size_t r = 0; r < rows; ++r) {
-      in.seekg(std::streamoff(rowStart(r)));
-      readExactly(in, dst + r * row, row, path);
-    }
-  } else {
-    size_t produced = 0, r = 0;
-    inflateStream(readFile(path), path, [&](const uint8_t* p, size_t n) {
-      if (n > expected - produced)
-        throw InputError(path, "", "decompressed data is larger than " + layoutName(dims, type) + " (" +
-                                       std::to_string(expected) + " bytes)");
-      const size_t end = produced + n;
-      // Every row of the window that this piece of the stream overlaps.
-      for (; r < rows && rowStart(r) < end; ++r) {
-        const size_t a = std::max(rowStart(r), produced), b = std::min(rowStart(r) + row, end);
-        std::memcpy(dst + r * row + (a - rowStart(r)), p + (a - produced), b - a);
-        if (rowStart(r) + row > end) break;  // the row goes on in the next piece
-      }
-      produced = end;
-    });
-    if (produced != expected) throw InputError(path, "", sizeMismatch(dims, type, produced, expected));
-  }
-  finishSamples(dst, type, w.extent, bigEndian, path, w.first);
-  return Grid(dims, type, std::shared_ptr<const void>(samples, dst), w.first, w.extent);
-}
-
 // A raw file's dims and type: its layout's, else its Open SciVis name's; checked.
 void rawLayoutOf(const std::string& path, const RawLayout& layout, Vec3i& dims, ScalarType& type) {
   const bool named = parseSciVisName(path, dims, type);
@@ -948,14 +956,255 @@ bool isRawName(const std::string& name) {
   return false;
 }
 
-Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindow* window) {
+// Where a file format keeps a volume's samples, x fastest, as one stretch of bytes or several
+// (a NRRD's one file per slab of slices) that follow each other in the volume, each in a file,
+// plain or a gzip/zlib stream: what a data-parallel rank reads its window and the bricks' ranges
+// from without ever holding the rest. Raw files; NRRD with raw or gzip encoding and no line skip
+// (attached data, a data file, or a list or pattern of them); MetaImage but a compressed stream
+// whose samples are its last bytes.
+struct SampleRuns {
+  struct Run {
+    std::string file;
+    size_t start = 0;        // the byte of the file where the run (or its compressed stream) begins
+    size_t skip = 0;         // compressed: the stream's bytes before the samples
+    bool compressed = false;
+    bool atEnd = false;      // plain: the samples are the file's last bytes (start is then a least)
+  };
+  std::vector<Run> runs;
+  size_t runBytes = 0;  // of samples, in each run
+  Vec3i dims;
+  ScalarType type = ScalarType::UInt8;
+  bool bigEndian = false;
+  Vec3d origin{0, 0, 0}, spacing{1, 1, 1};
+  const char* format = "raw";
+};
+
+// Opens a run's file; the byte where its samples (or stream) begin. Its size is checked first: a
+// plain run's file holds exactly its bytes after the start (or at least them, read from the end),
+// a compressed one no fewer bytes than deflate needs for the samples.
+std::ifstream openRun(const SampleRuns& s, const SampleRuns::Run& r, size_t& start) {
+  size_t size;
+  std::ifstream in = openFile(r.file, size);
+  start = r.start;
+  const std::string what = s.runs.size() == 1 ? layoutName(s.dims, s.type) : "a data file of " + layoutName(s.dims, s.type);
+  if (r.compressed) {
+    if (size < start) throw InputError(r.file, "", "the data begins past the end of the file");
+    checkInflatable(size - start, r.skip + s.runBytes, r.file);
+  } else if (r.atEnd) {
+    if (size < start + s.runBytes)
+      throw InputError(r.file, "", "data has " + std::to_string(size - std::min(size, start)) + " bytes but " + what +
+                                       " needs " + std::to_string(s.runBytes));
+    start = size - s.runBytes;
+  } else if (size != start + s.runBytes) {
+    throw InputError(r.file, "", "data has " + std::to_string(size - std::min(size, start)) + " bytes but " + what +
+                                     " needs " + std::to_string(s.runBytes));
+  }
+  return in;
+}
+
+// A compressed run's samples as they are inflated: sink(at, bytes, count), `at` their offset in
+// the run. Exactly skip + runBytes bytes must come out of the stream (more is an error within
+// 64 KiB of the first extra byte).
+template <typename Sink>
+void inflateRun(const SampleRuns& s, const SampleRuns::Run& r, size_t start, Sink&& sink) {
+  Bytes stream = readFile(r.file);
+  stream.erase(stream.begin(), stream.begin() + long(std::min(start, stream.size())));
+  const size_t total = r.skip + s.runBytes;
+  size_t produced = 0;
+  inflateStream(stream, r.file, [&](const uint8_t* p, size_t n) {
+    if (n > total - produced)
+      throw InputError(r.file, "", "decompressed data is larger than the " + std::to_string(total) + " bytes " +
+                                       layoutName(s.dims, s.type) + " needs");
+    const size_t a = std::max(produced, r.skip), b = produced + n;
+    if (b > a) sink(a - r.skip, p + (a - produced), b - a);
+    produced = b;
+  });
+  if (produced != total)
+    throw InputError(r.file, "", "decompressed data has " + std::to_string(produced) + " bytes but " +
+                                     layoutName(s.dims, s.type) + " needs " + std::to_string(total));
+}
+
+// The window's samples of `s`, read without the rest: a plain run's rows of the window by their
+// byte ranges, a compressed run inflated whole but only the window's rows kept; a run holding no
+// row of the window is not opened. Errors about the samples name `file`.
+Grid readRunsWindow(const SampleRuns& s, const SampleWindow& w, const std::string& file) {
+  const size_t size = scalarTypeSize(s.type);
+  const size_t row = size_t(w.extent.x) * size, rows = size_t(w.extent.y) * size_t(w.extent.z);
+  // The volume's byte offset of the window's row r (y fastest, then z).
+  auto rowStart = [&](size_t r) {
+    const size_t y = size_t(w.first.y) + r % size_t(w.extent.y), z = size_t(w.first.z) + r / size_t(w.extent.y);
+    return ((z * size_t(s.dims.y) + y) * size_t(s.dims.x) + size_t(w.first.x)) * size;
+  };
+  // The runs holding rows of the window, with the first such row of each; their files checked
+  // before the window's samples are allocated (a header may claim more than its files hold).
+  std::vector<std::pair<size_t, size_t>> needed;
+  for (size_t k = 0, first = 0; k < s.runs.size() && first < rows; ++k) {
+    const size_t lo = k * s.runBytes, hi = lo + s.runBytes;
+    while (first < rows && rowStart(first) + row <= lo) ++first;
+    if (first == rows || rowStart(first) >= hi) continue;
+    size_t start;
+    openRun(s, s.runs[k], start);
+    needed.emplace_back(k, first);
+  }
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(row * rows);
+  uint8_t* dst = samples.get();
+  for (const auto& [k, first] : needed) {
+    const SampleRuns::Run& run = s.runs[k];
+    const size_t lo = k * s.runBytes, hi = lo + s.runBytes;
+    size_t start;
+    std::ifstream in = openRun(s, run, start);
+    if (run.compressed) {
+      // What of the volume's bytes [at, at + n) lies in the rows from r on (rows before it are done).
+      size_t r = first;
+      inflateRun(s, run, start, [&](size_t offset, const uint8_t* p, size_t n) {
+        const size_t at = lo + offset;
+        for (; r < rows && rowStart(r) < at + n; ++r) {
+          const size_t a = std::max(rowStart(r), at), b = std::min(rowStart(r) + row, at + n);
+          if (b > a) std::memcpy(dst + r * row + (a - rowStart(r)), p + (a - at), b - a);
+          if (rowStart(r) + row > at + n) break;  // the row goes on in the next piece
+        }
+      });
+      continue;
+    }
+    for (size_t r = first; r < rows && rowStart(r) < hi; ++r) {
+      const size_t a = std::max(rowStart(r), lo), b = std::min(rowStart(r) + row, hi);
+      in.seekg(std::streamoff(start + (a - lo)));
+      readExactly(in, dst + r * row + (a - rowStart(r)), b - a, run.file);
+    }
+  }
+  finishSamples(dst, s.type, w.extent, s.bigEndian, file, w.first);
+  Grid g(s.dims, s.type, std::shared_ptr<const void>(samples, dst), w.first, w.extent);
+  g.setOrigin(s.origin);
+  g.setSpacing(s.spacing);
+  return g;
+}
+
+// The bricks' ranges of `s`, keeping none of the samples: the runs read (or inflated) in order, a
+// layer at a time.
+BrickGrid runsBrickRanges(const SampleRuns& s) {
+  for (const SampleRuns::Run& run : s.runs) {  // every file checked before anything is allocated
+    size_t start;
+    openRun(s, run, start);
+  }
+  const size_t size = scalarTypeSize(s.type), layer = size_t(s.dims.x) * size_t(s.dims.y) * size;
+  std::vector<uint8_t> bytes;
+  std::vector<float> values(layer / size);
+  // The layer in `bytes` as float, in native byte order.
+  auto toFloats = [&]() {
+    auto convert = [&](auto sample) {
+      using T = decltype(sample);
+      for (size_t i = 0; i < values.size(); ++i) {
+        uint8_t b[sizeof(T)];
+        std::memcpy(b, bytes.data() + i * sizeof(T), sizeof(T));
+        if (s.bigEndian) std::reverse(b, b + sizeof(T));
+        T v;
+        std::memcpy(&v, b, sizeof(T));
+        values[i] = float(v);
+      }
+    };
+    switch (s.type) {
+      case ScalarType::UInt8: convert(uint8_t()); break;
+      case ScalarType::UInt16: convert(uint16_t()); break;
+      case ScalarType::Int16: convert(int16_t()); break;
+      case ScalarType::Float32: convert(float()); break;
+    }
+    return values.data();
+  };
+  return BrickGrid::fromStream(s.dims, [&](auto&& layerDone) {
+    bytes.reserve(layer);
+    int z = 0;
+    auto take = [&](const uint8_t* p, size_t n) {
+      while (n > 0) {
+        const size_t part = std::min(n, layer - bytes.size());
+        bytes.insert(bytes.end(), p, p + part);
+        p += part;
+        n -= part;
+        if (bytes.size() == layer) {
+          layerDone(z++, toFloats());
+          bytes.clear();
+        }
+      }
+    };
+    std::vector<uint8_t> chunk(size_t(1) << 20);
+    for (const SampleRuns::Run& run : s.runs) {
+      size_t start;
+      std::ifstream in = openRun(s, run, start);
+      if (run.compressed) {
+        inflateRun(s, run, start, [&](size_t, const uint8_t* p, size_t n) { take(p, n); });
+        continue;
+      }
+      in.seekg(std::streamoff(start));
+      for (size_t done = 0; done < s.runBytes;) {
+        const size_t n = std::min(chunk.size(), s.runBytes - done);
+        readExactly(in, chunk.data(), n, run.file);
+        take(chunk.data(), n);
+        done += n;
+      }
+    }
+  });
+}
+
+// The first `limit` bytes of a file (all of it when shorter: `whole`).
+Bytes readHead(const std::string& path, size_t limit, bool& whole) {
+  size_t size;
+  std::ifstream in = openFile(path, size);
+  whole = size <= limit;
+  Bytes head(std::min(size, limit));
+  readExactly(in, head.data(), head.size(), path);
+  return head;
+}
+
+// The runs of a volume file's samples, or nullopt: another format, a named pipe, or data that is
+// not in runs (ASCII, line skips, a compressed MetaImage stream of unknown skip, a header longer
+// than 1 MiB). Only the header is read.
+std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout) {
+  const std::string name = lower(fs::path(path).filename().string());
+  const bool nrrd = endsWith(name, ".nrrd") || endsWith(name, ".nhdr"), meta = endsWith(name, ".mhd") || endsWith(name, ".mha");
+  if ((!isRawName(name) && !nrrd && !meta) || checkInputFile(path, "file").stream) return std::nullopt;
+  SampleRuns s;
+  if (isRawName(name)) {
+    rawLayoutOf(path, layout, s.dims, s.type);
+    bool gzip;
+    openRawFile(path, s.dims, s.type, gzip);
+    s.bigEndian = layout.bigEndian;
+    s.runBytes = checkedBytes(s.dims, s.type, path);
+    s.runs.push_back({path, 0, 0, gzip, false});
+    return s;
+  }
+  bool whole;
+  const Bytes head = readHead(path, size_t(1) << 20, whole);
+  if (nrrd) {
+    const std::optional<NrrdHeader> h = readNrrdHeader(path, head, whole);
+    if (!h || h->enc == NrrdHeader::Enc::Ascii || h->lineSkip != 0) return std::nullopt;
+    s.dims = h->dims, s.type = h->type, s.bigEndian = h->bigEndian, s.origin = h->origin, s.spacing = h->spacing;
+    s.format = "NRRD";
+    const bool gzip = h->enc == NrrdHeader::Enc::Gzip;
+    const size_t total = checkedBytes(s.dims, s.type, path), skip = size_t(std::max(h->byteSkip, 0L));
+    const std::vector<std::string> files = h->files.empty() ? std::vector<std::string>{path} : h->files;
+    s.runBytes = total / files.size();
+    for (const std::string& file : files) {
+      const size_t start = file == path && h->files.empty() ? h->dataStart : 0;
+      s.runs.push_back({file, start + (gzip ? 0 : skip), gzip ? skip : 0, gzip, h->byteSkip == -1});
+    }
+    return s;
+  }
+  const std::optional<MetaHeader> h = readMetaHeader(path, head, whole);
+  if (!h || (h->compressed && h->skip == -1)) return std::nullopt;
+  s.dims = h->dims, s.type = h->type, s.bigEndian = h->bigEndian, s.origin = h->origin, s.spacing = h->spacing;
+  s.format = "MetaImage";
+  s.runBytes = checkedBytes(s.dims, s.type, path);
+  const size_t skip = size_t(std::max(h->skip, 0L));
+  s.runs.push_back({h->dataFile, h->dataStart + (h->compressed ? 0 : skip), h->compressed ? skip : 0, h->compressed, h->skip == -1});
+  return s;
+}
+
+
+Grid loadRaw(const std::string& path, const RawLayout& layout) {
   const bool stream = checkInputFile(path, "file").stream;
   Vec3i dims;
   ScalarType type;
   rawLayoutOf(path, layout, dims, type);
   const size_t expected = checkedBytes(dims, type, path);
-  if (window) checkWindow(*window, dims, path);
-  if (stream && window) return windowOf(loadRaw(path, layout, nullptr), window->first, window->extent);
   if (stream) {
     // A named pipe is read no further than the samples allow (with room for gzip's few bytes
     // of framing and stored blocks), then checked like a file.
@@ -973,7 +1222,6 @@ Grid loadRaw(const std::string& path, const RawLayout& layout, const SampleWindo
   }
   bool gzip;
   std::ifstream in = openRawFile(path, dims, type, gzip);
-  if (window) return loadRawWindow(path, in, gzip, dims, type, layout.bigEndian, *window);
   std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
   uint8_t* dst = samples.get();
   if (gzip) {
@@ -1047,72 +1295,10 @@ const char* volumeExtensions() {
          ".vdb, or a folder of DICOM slices";
 }
 
-std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout) {
-  const std::string name = lower(fs::path(path).filename().string());
-  if (!isRawName(name) || checkInputFile(path, "file").stream) return std::nullopt;
-  Vec3i dims;
-  ScalarType type;
-  rawLayoutOf(path, layout, dims, type);
-  const size_t expected = checkedBytes(dims, type, path);
-  bool gzip;
-  std::ifstream in = openRawFile(path, dims, type, gzip);
-  const size_t size = scalarTypeSize(type), layer = size_t(dims.x) * size_t(dims.y);
-  std::vector<uint8_t> bytes;
-  std::vector<float> values;
-  // `count` samples of `bytes` as float, in native byte order.
-  auto toFloats = [&](size_t count) {
-    values.resize(count);
-    auto convert = [&](auto sample) {
-      using T = decltype(sample);
-      for (size_t i = 0; i < count; ++i) {
-        uint8_t b[sizeof(T)];
-        std::memcpy(b, bytes.data() + i * sizeof(T), sizeof(T));
-        if (layout.bigEndian) std::reverse(b, b + sizeof(T));
-        T v;
-        std::memcpy(&v, b, sizeof(T));
-        values[i] = float(v);
-      }
-    };
-    switch (type) {
-      case ScalarType::UInt8: convert(uint8_t()); break;
-      case ScalarType::UInt16: convert(uint16_t()); break;
-      case ScalarType::Int16: convert(int16_t()); break;
-      case ScalarType::Float32: convert(float()); break;
-    }
-    return values.data();
-  };
-  if (gzip) {
-    // Inflated as one stream, a layer at a time (the compressed file is held, not the volume).
-    return BrickGrid::fromStream(dims, [&](auto&& layerDone) {
-      bytes.reserve(layer * size);
-      size_t produced = 0;
-      int z = 0;
-      inflateStream(readFile(path), path, [&](const uint8_t* p, size_t n) {
-        if (n > expected - produced)
-          throw InputError(path, "", "decompressed data is larger than " + layoutName(dims, type) + " (" +
-                                         std::to_string(expected) + " bytes)");
-        produced += n;
-        while (n > 0) {
-          const size_t take = std::min(n, layer * size - bytes.size());
-          bytes.insert(bytes.end(), p, p + take);
-          p += take;
-          n -= take;
-          if (bytes.size() == layer * size) {
-            layerDone(z++, toFloats(layer));
-            bytes.clear();
-          }
-        }
-      });
-      if (produced != expected) throw InputError(path, "", sizeMismatch(dims, type, produced, expected));
-    });
-  }
-  return BrickGrid::fromLayers(dims, [&](int z0, int z1) -> const float* {
-    const size_t count = size_t(z1 - z0 + 1) * layer;
-    bytes.resize(count * size);
-    in.seekg(std::streamoff(size_t(z0) * layer * size));
-    readExactly(in, bytes.data(), bytes.size(), path);
-    return toFloats(count);
-  });
+std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout) {
+  const std::optional<SampleRuns> runs = sampleRunsOf(path, layout);
+  if (!runs) return std::nullopt;
+  return runsBrickRanges(*runs);
 }
 
 void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& file) {
@@ -1128,9 +1314,20 @@ void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& fi
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, const VolumePart& part,
                           const SampleWindow* window) {
   const std::string name = lower(fs::path(path).filename().string());
-  const bool raw = isRawName(name);
-  if (window && !raw) {
-    // Formats without a window reader of their own: read whole, keep the window.
+  std::error_code ec;
+  const bool folder = fs::is_directory(path, ec);
+  if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
+    throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
+  if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
+  if (window) {
+    if (const std::optional<SampleRuns> runs = sampleRunsOf(path, layout)) {
+      checkWindow(*window, runs->dims, path);
+      VolumeFile f;
+      f.grid = readRunsWindow(*runs, *window, path);
+      f.format = runs->format;
+      return f;
+    }
+    // Data not in runs (other formats, ASCII, a pipe...): read whole, keep the window.
     VolumeFile f = readVolumeFile(path, layout, part, nullptr);
     if (f.grid.sparse()) throw InputError(path, "", "a sparse (OpenVDB) volume cannot be split into windows yet");
     checkWindow(*window, f.grid.dims(), path);
@@ -1140,11 +1337,6 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
     f.grid.setSpacing(spacing);
     return f;
   }
-  std::error_code ec;
-  const bool folder = fs::is_directory(path, ec);
-  if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
-    throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
-  if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
   if (folder) return loadDicom(path, part.series);  // a folder is a DICOM series
   auto wrap = [](Grid grid, const char* format) {
     VolumeFile f;
@@ -1158,7 +1350,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz"))
     // libnifti overflows a stack buffer on some malformed headers: it reads in a child process.
     return readInChildProcess(path, "libnifti", [&] { return loadNifti(path); });
-  if (raw) return wrap(loadRaw(path, layout, window), "raw");
+  if (isRawName(name)) return wrap(loadRaw(path, layout), "raw");
   if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, part.series);
   if (endsWith(name, ".vdb")) return loadVdb(path, part.grid);
   const std::string ext = fs::path(name).extension().string();

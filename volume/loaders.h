@@ -46,18 +46,22 @@ struct VolumePart {
 struct SampleWindow {
   Vec3i first, extent;
 };
-// `window` (a data-parallel rank's part): only those samples are kept. Raw files (plain or gzip)
-// read only them (a plain file their byte ranges; a gzip stream is inflated whole, keeping only
-// the window's rows); the other formats are read whole and the window is cut from them. A window
-// not within the volume is an InputError naming the file; OpenVDB volumes have no window yet.
+// `window` (a data-parallel rank's part): only those samples are kept. Where the samples lie in
+// the files as runs of bytes — raw files (plain or gzip), NRRD with raw or gzip encoding (attached,
+// a data file, or one file per slab of slices; no line skip), MetaImage (plain, or compressed with a
+// known HeaderSize) — only the window's are read: a plain file's rows of the window by their byte
+// ranges, a compressed stream inflated whole keeping only the window's rows, a file holding none of
+// the window's rows not opened. Other formats and layouts are read whole and the window cut from
+// them. A window not within the volume is an InputError naming the file; OpenVDB volumes have no
+// window yet.
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {},
                           const SampleWindow* window = nullptr);
 void checkWindow(const SampleWindow& window, const Vec3i& dims, const std::string& file);
-// The brick ranges (BrickGrid) of a raw file's volume, keeping none of the samples: a plain file
-// read a row of bricks at a time, a gzip file inflated as one stream a layer at a time. What a
-// data-parallel rank needs to split the volume before it reads its window. nullopt for any other
-// file (a pipe, another format).
-std::optional<BrickGrid> rawBrickRanges(const std::string& path, const RawLayout& layout = {});
+// The brick ranges (BrickGrid) of a file's volume, keeping none of the samples: the files read (or
+// inflated) in order, a layer at a time. What a data-parallel rank needs to split the volume
+// before it reads its window. For the files whose window readVolumeFile reads alone (above);
+// nullopt for any other (a pipe, another format or layout).
+std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout = {});
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;
