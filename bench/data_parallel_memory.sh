@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# bench/data_parallel_memory.sh [N] [RANKS]: what a data-parallel render saves in memory. An
-# N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) rendered by one process and by
+# bench/data_parallel_memory.sh [N] [RANKS] [nrrd]: what a data-parallel render saves in memory. An
+# N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) — or with `nrrd`, an N^3 uint16
+# gyroid written as a NRRD of one file per slice (N = 1024: 2 GiB; python3-numpy) — rendered by one process and by
 # RANKS ranks with --data-parallel (mpirun, oversubscribed if the machine has fewer cores); prints
 # each process's peak resident memory (GNU time), the process's own base (the same render of an
 # 8^3 volume), each rank's share of the single process's peak beyond that base, and whether the
@@ -10,17 +11,46 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 n=${1:-1024}
 ranks=${2:-4}
+kind=${3:-procedural}
 [[ "$n" =~ ^[0-9]+$ && "$ranks" =~ ^[0-9]+$ && "$n" -ge 16 && "$ranks" -ge 2 ]] ||
   { echo "data_parallel_memory: expected N >= 16 and RANKS >= 2" >&2; exit 2; }
+[[ "$kind" == procedural || "$kind" == nrrd ]] || { echo "data_parallel_memory: the third argument is 'nrrd' or nothing" >&2; exit 2; }
 isotrace=${ISOTRACE:-build/isotrace}
 [ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
+# An N^3 uint16 gyroid ball as a NRRD with one file per slice (the samples 0..65535, the surface at 32768).
+writeNrrd() {  # RESOLUTION FOLDER
+  mkdir -p "$2"
+  /usr/bin/python3 - "$1" "$2" <<'PY'
+import sys, numpy as np
+n, folder = int(sys.argv[1]), sys.argv[2]
+c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
+y, x = np.meshgrid(c, c, indexing="ij")
+for k in range(n):
+    z = c[k]
+    s = 3 * np.pi
+    g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
+    v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)  # the gyroid cut to a ball
+    np.clip(32768 + v * 20000, 0, 65535).astype("<u2").tofile("%s/slice.%04d" % (folder, k))
+open(folder + "/field.nhdr", "w").write(
+    "NRRD0004\ndimension: 3\ntype: ushort\nsizes: %d %d %d\nendian: little\nencoding: raw\n"
+    "data file: slice.%%04d 0 %d 1\n" % (n, n, n, n - 1))
+PY
+}
 scene() {  # RESOLUTION
+  if [ "$kind" = nrrd ]; then
+    [ -f "$work/f$1/field.nhdr" ] || writeNrrd "$1" "$work/f$1"
+    volume="\"file\": \"$work/f$1/field.nhdr\""
+    iso=32768
+  else
+    volume="\"procedural\": { \"field\": \"gyroid_ball\", \"resolution\": [$1, $1, $1] }"
+    iso=0
+  fi
   cat <<JSON
 { "film": { "width": 96, "height": 72 }, "integrator": { "type": "path", "spp": 2, "max_depth": 3 },
-  "volumes": [ { "procedural": { "field": "gyroid_ball", "resolution": [$1, $1, $1] },
-                 "isosurfaces": [ { "value": 0, "inside": "below", "material": "red" } ] } ],
+  "volumes": [ { $volume,
+                 "isosurfaces": [ { "value": $iso, "inside": "below", "material": "red" } ] } ],
   "materials": { "red": { "type": "diffuse", "color": [0.8, 0.3, 0.2] } },
   "lights": [ { "type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5 },
               { "type": "environment", "radiance": 0.3 } ] }
@@ -37,7 +67,11 @@ base=$(peak "$work/base.txt")
 one=$(peak "$work/one.txt")
 same=no
 oiiotool --fail 0 --failpercent 0 "$work/one.exr" "$work/many.exr" --diff > /dev/null 2>&1 && same=yes
-echo "volume ${n}^3 float32 ($(( n * n * n * 4 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
+if [ "$kind" = nrrd ]; then
+  echo "volume ${n}^3 uint16, a NRRD of $n slice files ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
+else
+  echo "volume ${n}^3 float32 ($(( n * n * n * 4 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
+fi
 echo "| process | peak | beyond the base | share of one process's beyond the base |"
 echo "|---|---|---|---|"
 echo "| base (8^3 volume) | $(( base / 1024 )) | | |"

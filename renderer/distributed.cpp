@@ -773,6 +773,7 @@ class RankTracer {
   }
 
   void post(std::vector<char>& bytes, int to, int tag) {
+    m_outbox.progress();  // the buffers of the messages taken go (a busy rank may never wait)
     bytesSent += double(bytes.size());
     m_outbox.send(std::move(bytes), to, tag);
     bytes.clear();
