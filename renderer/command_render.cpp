@@ -171,7 +171,8 @@ std::string rankFigures(const RankFigures* f) {
       return "[" + s + "]";
     };
     dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"rays_sent_per_rank\": " +
-                   list(f->raysSent) + ",\n  \"bytes_sent_per_rank\": " +
+                   list(f->raysSent) + ",\n  \"rays_received_per_rank\": " + list(f->raysReceived) +
+                   ",\n  \"bytes_sent_per_rank\": " +
                    list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) + ",\n";
   }
   return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +

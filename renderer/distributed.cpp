@@ -626,6 +626,7 @@ class RankTracer {
       }
     }
     if (f.shadow && !any) return false;
+    raysReceived += double(f.theirs.size());
     std::vector<Found> answers(f.theirs.size());
     parallel(f.theirs.size(), stats, [&](size_t k, TraversalStats& s) {
       Ray r = f.theirs[k];
@@ -750,9 +751,10 @@ class RankTracer {
     return all != 0;
   }
 
-  // Rays of this rank's paths, their copies sent to other ranks, bytes this rank sent, seconds
-  // it spent waiting for other ranks' messages and for its own to be taken.
-  double raysAsked = 0, raysSent = 0, bytesSent = 0, waitSeconds = 0;
+  // Rays of this rank's paths, their copies sent to other ranks, the rays other ranks sent it,
+  // bytes this rank sent, seconds it spent waiting for other ranks' messages and for its own to
+  // be taken.
+  double raysAsked = 0, raysSent = 0, raysReceived = 0, bytesSent = 0, waitSeconds = 0;
 
  private:
   struct Found {
@@ -1052,25 +1054,28 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     }
   }
   result.seconds = since(start);
-  double asked[4] = {tracer.raysAsked, tracer.raysSent, tracer.bytesSent, tracer.waitSeconds};
-  std::vector<double> allAsked(static_cast<size_t>(4 * ranks));
-  MPI_Gather(asked, 4, MPI_DOUBLE, allAsked.data(), 4, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  constexpr int kFigures = 5;
+  double asked[kFigures] = {tracer.raysAsked, tracer.raysSent, tracer.raysReceived, tracer.bytesSent, tracer.waitSeconds};
+  std::vector<double> allAsked(static_cast<size_t>(kFigures * ranks));
+  MPI_Gather(asked, kFigures, MPI_DOUBLE, allAsked.data(), kFigures, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   if (rank != 0) return result;
   if (figures) {
     figures->tiles.assign(static_cast<size_t>(ranks), 0);
     for (int t : owner) ++figures->tiles[size_t(t)];
     figures->raysAsked.clear();
     figures->raysSent.clear();
+    figures->raysReceived.clear();
     figures->bytesSent.clear();
     figures->busySeconds.clear();
     figures->waitSeconds.clear();
     for (int q = 0; q < ranks; ++q) {
-      const double* f = &allAsked[size_t(4 * q)];
+      const double* f = &allAsked[size_t(kFigures * q)];
       figures->raysAsked.push_back(f[0]);
       figures->raysSent.push_back(f[1]);
-      figures->bytesSent.push_back(f[2]);
-      figures->waitSeconds.push_back(f[3]);
-      figures->busySeconds.push_back(std::max(0.0, result.seconds - f[3]));
+      figures->raysReceived.push_back(f[2]);
+      figures->bytesSent.push_back(f[3]);
+      figures->waitSeconds.push_back(f[4]);
+      figures->busySeconds.push_back(std::max(0.0, result.seconds - f[4]));
     }
   }
   resolveFrame(frame, options, film, direct, result);

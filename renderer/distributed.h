@@ -56,9 +56,10 @@ struct RankFigures {
   std::vector<int> tiles;
   std::vector<double> busySeconds;
   // Data-parallel: per rank, the rays of its paths, their copies it sent to other ranks (those
-  // whose volume part a ray passes through), the bytes it sent (rays, and hits back), and the
-  // seconds it waited for other ranks' messages (busySeconds: the rest of the frame's).
-  std::vector<double> raysAsked, raysSent, bytesSent, waitSeconds;
+  // whose volume part a ray passes through), the rays other ranks sent it, the bytes it sent
+  // (rays, and hits back), and the seconds it waited for other ranks' messages (busySeconds: the
+  // rest of the frame's).
+  std::vector<double> raysAsked, raysSent, raysReceived, bytesSent, waitSeconds;
 };
 
 // One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image

@@ -213,6 +213,13 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
         asked += n.get<double>();
       }
       EXPECT_EQ(asked, single["rays"]["total"].get<double>());
+      // Every copy a rank sent, another received.
+      double sent = 0, received = 0;
+      for (int q = 0; q < ranks; ++q) {
+        sent += stats["rays_sent_per_rank"][size_t(q)].get<double>();
+        received += stats["rays_received_per_rank"][size_t(q)].get<double>();
+      }
+      EXPECT_EQ(sent, received);
       EXPECT_EQ(stats["bytes_sent_per_rank"].size(), size_t(ranks));
     }
   }
