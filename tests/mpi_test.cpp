@@ -230,7 +230,7 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
     ASSERT_EQ(runIsotrace(args.substr(1) + base + "_one.exr").status, 0);
     const auto r = runCommand(mpirun(2) + ISOTRACE_BINARY + args + base + "_two.exr --threads 1");
     ASSERT_EQ(r.status, 0) << r.err;
-    for (const std::string part : integrator == "compare" ? std::vector<std::string>{".direct", ".global", ".indirect"}
+    for (const std::string& part : integrator == "compare" ? std::vector<std::string>{".direct", ".global", ".indirect"}
                                                           : std::vector<std::string>{""})
     {
       const std::vector<float> one = readExr(base + "_one" + part + ".exr");
