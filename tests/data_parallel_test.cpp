@@ -93,11 +93,12 @@ std::string fileBytes(const std::string& path) {
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
-// NRRD and MetaImage files whose samples lie in runs of bytes are split like raw files: a rank
-// reads only its window, and the ranges from the files in order, a layer at a time. Every layout:
-// attached or detached data, one data file or one per slice, raw or compressed, byte skips (from
-// the end too), big-endian samples, a MetaImage's LOCAL or compressed data, and the real files.
-TEST(DataParallel, NrrdAndMetaImageWindowsAreReadAlone) {
+// NRRD, MetaImage and binary VTK files, whose samples lie in runs of bytes, are split like raw
+// files: a rank reads only its window, and the ranges from the files in order, a layer at a time.
+// Every layout: attached or detached data, one data file or one per slice, raw or compressed, byte
+// skips (from the end too), big-endian samples, a MetaImage's LOCAL or compressed data, VTK with
+// bytes after the samples, and the real files.
+TEST(DataParallel, HeaderFormatWindowsAreReadAlone) {
   const std::string dir = test::scratchDir();
   const std::string neghip = fileBytes(test::dataPath("volumes/neghip_64x64x64_uint8.raw"));
   const std::string head = "dimension: 3\ntype: uchar\nsizes: 64 64 64\nspacings: 1.5 2 2.5\n";
@@ -123,10 +124,14 @@ TEST(DataParallel, NrrdAndMetaImageWindowsAreReadAlone) {
   test::writeText(dir + "/packed.mhd", meta + "CompressedData = True\nElementDataFile = packed.zraw\n");
   test::writeText(dir + "/skipped.raw", std::string(21, 'j') + neghip);
   test::writeText(dir + "/skipped.mhd", meta + "HeaderSize = -1\nElementDataFile = skipped.raw\n");
+  test::writeText(dir + "/trailing.vtk", "# vtk DataFile Version 3.0\nneghip\nBINARY\nDATASET STRUCTURED_POINTS\n"
+                                         "DIMENSIONS 64 64 64\nSPACING 1 2 3\nORIGIN 5 6 7\nPOINT_DATA 262144\n"
+                                         "SCALARS density unsigned_char 1\nLOOKUP_TABLE default\n" + neghip + "\n");
   for (const std::string& path :
        {dir + "/attached.nrrd", dir + "/attached_gz.nrrd", dir + "/end.nhdr", dir + "/big.nhdr", dir + "/local.mhd",
-        dir + "/packed.mhd", dir + "/skipped.mhd", test::dataPath("volumes/headsq/quarter.nhdr"),
-        test::dataPath("volumes/nucleon/nucleon.nrrd"), test::dataPath("volumes/HeadMRVolume.mhd")}) {
+        dir + "/packed.mhd", dir + "/skipped.mhd", dir + "/trailing.vtk", test::dataPath("volumes/headsq/quarter.nhdr"),
+        test::dataPath("volumes/nucleon/nucleon.nrrd"), test::dataPath("volumes/HeadMRVolume.mhd"),
+        test::dataPath("volumes/ironProt.vtk")}) {
     SCOPED_TRACE(path);
     const Grid whole = readVolumeFile(path).grid;
     if (path.find(dir) == 0 && path.find("big") == std::string::npos) {  // the neghip ones
@@ -145,9 +150,19 @@ TEST(DataParallel, NrrdAndMetaImageWindowsAreReadAlone) {
   }
   // What is not in runs is read whole and cut, as before: ASCII data, line skips.
   test::writeText(dir + "/ascii.nrrd", "NRRD0004\ndimension: 3\ntype: uchar\nsizes: 2 2 2\nencoding: ascii\n\n1 2 3 4 5 6 7 8\n");
-  EXPECT_FALSE(fileBrickRanges(dir + "/ascii.nrrd").has_value());
+  test::writeText(dir + "/ascii.vtk", "# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 2 2\n"
+                                      "POINT_DATA 8\nSCALARS s unsigned_char\nLOOKUP_TABLE default\n1 2 3 4 5 6 7 8\n");
   const SampleWindow all{{0, 0, 0}, {2, 2, 2}};
-  EXPECT_EQ(readVolumeFile(dir + "/ascii.nrrd", {}, {}, &all).grid.value(1, 1, 1), 8.f);
+  for (const std::string& path : {dir + "/ascii.nrrd", dir + "/ascii.vtk"}) {
+    EXPECT_FALSE(fileBrickRanges(path).has_value()) << path;
+    EXPECT_EQ(readVolumeFile(path, {}, {}, &all).grid.value(1, 1, 1), 8.f) << path;
+  }
+  // A binary VTK file shorter than its DIMENSIONS: one error naming it, nothing allocated first.
+  test::writeText(dir + "/short.vtk", "# vtk DataFile Version 3.0\nt\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS 4000 4000 4000\n"
+                                      "SCALARS s float\nLOOKUP_TABLE default\n" + std::string(1000, 'x'));
+  const SampleWindow part{{0, 0, 0}, {100, 100, 100}};
+  EXPECT_THROW(readVolumeFile(dir + "/short.vtk", {}, {}, &part), InputError);
+  EXPECT_THROW(fileBrickRanges(dir + "/short.vtk"), InputError);
 }
 
 // A rank opens only the files that hold its window's rows: a NRRD's slice files outside it may
@@ -245,7 +260,7 @@ TEST(DataParallel, RawFilesAreSplitWithoutBeingHeldWhole) {
     differ += ctStreamed->brickMin(b) != ctBricks.brickMin(b) || ctStreamed->brickMax(b) != ctBricks.brickMax(b);
   EXPECT_EQ(differ, 0u);
   // Other formats are read whole (then cut).
-  EXPECT_FALSE(fileBrickRanges(test::dataPath("volumes/ironProt.vtk")).has_value());
+  EXPECT_FALSE(fileBrickRanges(test::dataPath("volumes/example4d.nii.gz")).has_value());
   // A file shorter than its name says, a gzip stream cut short: one error naming it.
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/short_16x16x16_uint8.raw", std::string(100, 'x'));

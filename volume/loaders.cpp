@@ -662,94 +662,117 @@ Grid loadMetaImage(const std::string& path) {
 // Legacy VTK STRUCTURED_POINTS (https://vtk.org/wp-content/uploads/2015/04/file-formats.pdf).
 // Binary data is big-endian by the VTK convention.
 
-Grid loadVtk(const std::string& path) {
-  const Bytes bytes = readFile(path);
+// A legacy VTK header: the samples' layout and where they begin (`dataStart`); the data is not
+// read. `bytes`: the whole file, or its first part (`whole` false): then nullopt if the header
+// does not end in it.
+struct VtkHeader {
+  Vec3i dims{0, 0, 0};
+  ScalarType type = ScalarType::UInt8;
+  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
+  bool binary = false;  // BINARY: big-endian samples; else ASCII
+  size_t dataStart = 0;
+};
+
+std::optional<VtkHeader> readVtkHeader(const std::string& path, const Bytes& bytes, bool whole) {
+  struct PartEnded {};
   size_t pos = 0, lineNo = 0;
   auto nextLine = [&]() -> std::string {
-    if (pos >= bytes.size())
+    if (pos >= bytes.size()) {
+      if (!whole) throw PartEnded{};
       throw InputError(path, "line " + std::to_string(lineNo + 1), "unexpected end of file in header");
+    }
     size_t nl = pos;
     while (nl < bytes.size() && bytes[nl] != '\n') ++nl;
+    if (nl == bytes.size() && !whole) throw PartEnded{};
     std::string line(bytes.begin() + pos, bytes.begin() + nl);
     pos = nl + 1;
     ++lineNo;
     return trim(line);
   };
   auto here = [&]() { return "line " + std::to_string(lineNo); };
-  if (nextLine().rfind("# vtk DataFile", 0) != 0)
-    throw InputError(path, "line 1", "not a legacy VTK file (missing '# vtk DataFile' line)");
-  nextLine();  // title
-  std::string format;
-  do { format = nextLine(); } while (format.empty());
-  const bool binary = format == "BINARY";
-  if (!binary && format != "ASCII") throw InputError(path, here(), "expected ASCII or BINARY");
-  std::string line;
-  do { line = nextLine(); } while (line.empty());
-  if (line != "DATASET STRUCTURED_POINTS")
-    throw InputError(path, here(), "only 'DATASET STRUCTURED_POINTS' is supported, found '" + line + "'");
-  Vec3i dims{0, 0, 0};
-  Vec3d spacing{1, 1, 1}, origin{0, 0, 0};
-  bool haveDims = false;
-  ScalarType type = ScalarType::UInt8;
-  for (;;) {
-    line = nextLine();
-    if (line.empty()) continue;
-    std::istringstream in(line);
-    std::string key;
-    in >> key;
-    const std::string rest = trim(line.substr(key.size()));
-    if (key == "DIMENSIONS") {
-      dims = toDims(parseNumbers(rest, path, here(), 3), path, here());
-      haveDims = true;
-    } else if (key == "SPACING" || key == "ASPECT_RATIO") {
-      auto s = parseNumbers(rest, path, here(), 3);
-      spacing = {s[0], s[1], s[2]};
-      checkSpacing(spacing, path, here());
-    } else if (key == "ORIGIN") {
-      auto o = parseNumbers(rest, path, here(), 3);
-      origin = {o[0], o[1], o[2]};
-    } else if (key == "POINT_DATA") {
-      if (!haveDims) throw InputError(path, here(), "POINT_DATA before DIMENSIONS");
-      const double n = parseNumbers(rest, path, here(), 1)[0];
-      if (n != double(dims.x) * dims.y * dims.z)
-        throw InputError(path, here(), "POINT_DATA count disagrees with DIMENSIONS");
-    } else if (key == "SCALARS") {
-      std::string name, t;
-      int components = 1;
-      in >> name >> t;
-      if (in >> components && components != 1)
-        throw InputError(path, here(), "only single-component scalars are supported");
-      if (t == "unsigned_char") type = ScalarType::UInt8;
-      else if (t == "unsigned_short") type = ScalarType::UInt16;
-      else if (t == "short") type = ScalarType::Int16;
-      else if (t == "float") type = ScalarType::Float32;
-      else throw InputError(path, here(), "unsupported scalar type '" + t +
-                                              "' (supported: unsigned_char, unsigned_short, short, float)");
-    } else if (key == "LOOKUP_TABLE") {
-      break;  // the data follows this line
-    } else if (key == "CELL_DATA" || key == "VECTORS" || key == "FIELD") {
-      throw InputError(path, here(), "'" + key + "' is not supported; expected SCALARS point data");
-    } else {
-      throw InputError(path, here(), "unexpected keyword '" + key + "'");
+  VtkHeader h;
+  try {
+    if (nextLine().rfind("# vtk DataFile", 0) != 0)
+      throw InputError(path, "line 1", "not a legacy VTK file (missing '# vtk DataFile' line)");
+    nextLine();  // title
+    std::string format;
+    do { format = nextLine(); } while (format.empty());
+    h.binary = format == "BINARY";
+    if (!h.binary && format != "ASCII") throw InputError(path, here(), "expected ASCII or BINARY");
+    std::string line;
+    do { line = nextLine(); } while (line.empty());
+    if (line != "DATASET STRUCTURED_POINTS")
+      throw InputError(path, here(), "only 'DATASET STRUCTURED_POINTS' is supported, found '" + line + "'");
+    bool haveDims = false;
+    for (;;) {
+      line = nextLine();
+      if (line.empty()) continue;
+      std::istringstream in(line);
+      std::string key;
+      in >> key;
+      const std::string rest = trim(line.substr(key.size()));
+      if (key == "DIMENSIONS") {
+        h.dims = toDims(parseNumbers(rest, path, here(), 3), path, here());
+        haveDims = true;
+      } else if (key == "SPACING" || key == "ASPECT_RATIO") {
+        auto s = parseNumbers(rest, path, here(), 3);
+        h.spacing = {s[0], s[1], s[2]};
+        checkSpacing(h.spacing, path, here());
+      } else if (key == "ORIGIN") {
+        auto o = parseNumbers(rest, path, here(), 3);
+        h.origin = {o[0], o[1], o[2]};
+      } else if (key == "POINT_DATA") {
+        if (!haveDims) throw InputError(path, here(), "POINT_DATA before DIMENSIONS");
+        const double n = parseNumbers(rest, path, here(), 1)[0];
+        if (n != double(h.dims.x) * h.dims.y * h.dims.z)
+          throw InputError(path, here(), "POINT_DATA count disagrees with DIMENSIONS");
+      } else if (key == "SCALARS") {
+        std::string name, t;
+        int components = 1;
+        in >> name >> t;
+        if (in >> components && components != 1)
+          throw InputError(path, here(), "only single-component scalars are supported");
+        if (t == "unsigned_char") h.type = ScalarType::UInt8;
+        else if (t == "unsigned_short") h.type = ScalarType::UInt16;
+        else if (t == "short") h.type = ScalarType::Int16;
+        else if (t == "float") h.type = ScalarType::Float32;
+        else throw InputError(path, here(), "unsupported scalar type '" + t +
+                                                "' (supported: unsigned_char, unsigned_short, short, float)");
+      } else if (key == "LOOKUP_TABLE") {
+        break;  // the data follows this line
+      } else if (key == "CELL_DATA" || key == "VECTORS" || key == "FIELD") {
+        throw InputError(path, here(), "'" + key + "' is not supported; expected SCALARS point data");
+      } else {
+        throw InputError(path, here(), "unexpected keyword '" + key + "'");
+      }
     }
+    if (!haveDims) throw InputError(path, here(), "missing DIMENSIONS");
+  } catch (const PartEnded&) {
+    return std::nullopt;
   }
-  if (!haveDims) throw InputError(path, here(), "missing DIMENSIONS");
-  const size_t count = size_t(dims.x) * dims.y * dims.z;
+  checkedBytes(h.dims, h.type, path);
+  h.dataStart = std::min(pos, bytes.size());
+  return h;
+}
+
+Grid loadVtk(const std::string& path) {
+  const Bytes bytes = readFile(path);
+  const VtkHeader h = *readVtkHeader(path, bytes, true);
+  const size_t count = size_t(h.dims.x) * h.dims.y * h.dims.z;
   Bytes data;
-  if (binary) {
-    const size_t need = count * scalarTypeSize(type);
-    if (bytes.size() - std::min(pos, bytes.size()) < need)
-      throw InputError(path, "", "binary data has " + std::to_string(bytes.size() - std::min(pos, bytes.size())) +
+  if (h.binary) {
+    const size_t need = count * scalarTypeSize(h.type);
+    if (bytes.size() - h.dataStart < need)
+      throw InputError(path, "", "binary data has " + std::to_string(bytes.size() - h.dataStart) +
                                      " bytes but DIMENSIONS need " + std::to_string(need));
-    data.assign(bytes.begin() + long(pos), bytes.begin() + long(pos + need));
+    data.assign(bytes.begin() + long(h.dataStart), bytes.begin() + long(h.dataStart + need));
   } else {
-    data = asciiToBytes(std::string(bytes.begin() + long(std::min(pos, bytes.size())), bytes.end()),
-                        type, count, path);
+    data = asciiToBytes(std::string(bytes.begin() + long(h.dataStart), bytes.end()), h.type, count, path);
   }
   // ASCII values were converted to native order already.
-  Grid g = makeGrid(dims, type, data, binary, path);
-  g.setOrigin(origin);
-  g.setSpacing(spacing);
+  Grid g = makeGrid(h.dims, h.type, data, h.binary, path);
+  g.setOrigin(h.origin);
+  g.setSpacing(h.spacing);
   return g;
 }
 
@@ -961,7 +984,7 @@ bool isRawName(const std::string& name) {
 // plain or a gzip/zlib stream: what a data-parallel rank reads its window and the bricks' ranges
 // from without ever holding the rest. Raw files; NRRD with raw or gzip encoding and no line skip
 // (attached data, a data file, or a list or pattern of them); MetaImage but a compressed stream
-// whose samples are its last bytes.
+// whose samples are its last bytes; binary legacy VTK.
 struct SampleRuns {
   struct Run {
     std::string file;
@@ -969,6 +992,7 @@ struct SampleRuns {
     size_t skip = 0;         // compressed: the stream's bytes before the samples
     bool compressed = false;
     bool atEnd = false;      // plain: the samples are the file's last bytes (start is then a least)
+    bool moreAfter = false;  // plain: the file may hold more bytes after the samples
   };
   std::vector<Run> runs;
   size_t runBytes = 0;  // of samples, in each run
@@ -995,7 +1019,7 @@ std::ifstream openRun(const SampleRuns& s, const SampleRuns::Run& r, size_t& sta
       throw InputError(r.file, "", "data has " + std::to_string(size - std::min(size, start)) + " bytes but " + what +
                                        " needs " + std::to_string(s.runBytes));
     start = size - s.runBytes;
-  } else if (size != start + s.runBytes) {
+  } else if (r.moreAfter ? size < start + s.runBytes : size != start + s.runBytes) {
     throw InputError(r.file, "", "data has " + std::to_string(size - std::min(size, start)) + " bytes but " + what +
                                      " needs " + std::to_string(s.runBytes));
   }
@@ -1160,7 +1184,8 @@ Bytes readHead(const std::string& path, size_t limit, bool& whole) {
 std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout) {
   const std::string name = lower(fs::path(path).filename().string());
   const bool nrrd = endsWith(name, ".nrrd") || endsWith(name, ".nhdr"), meta = endsWith(name, ".mhd") || endsWith(name, ".mha");
-  if ((!isRawName(name) && !nrrd && !meta) || checkInputFile(path, "file").stream) return std::nullopt;
+  const bool vtk = endsWith(name, ".vtk");
+  if ((!isRawName(name) && !nrrd && !meta && !vtk) || checkInputFile(path, "file").stream) return std::nullopt;
   SampleRuns s;
   if (isRawName(name)) {
     rawLayoutOf(path, layout, s.dims, s.type);
@@ -1186,6 +1211,17 @@ std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout&
       const size_t start = file == path && h->files.empty() ? h->dataStart : 0;
       s.runs.push_back({file, start + (gzip ? 0 : skip), gzip ? skip : 0, gzip, h->byteSkip == -1});
     }
+    return s;
+  }
+  if (vtk) {
+    const std::optional<VtkHeader> h = readVtkHeader(path, head, whole);
+    if (!h || !h->binary) return std::nullopt;
+    s.dims = h->dims, s.type = h->type, s.bigEndian = true, s.origin = h->origin, s.spacing = h->spacing;
+    s.format = "VTK";
+    s.runBytes = checkedBytes(s.dims, s.type, path);
+    SampleRuns::Run run{path, h->dataStart, 0, false, false};
+    run.moreAfter = true;
+    s.runs.push_back(run);
     return s;
   }
   const std::optional<MetaHeader> h = readMetaHeader(path, head, whole);

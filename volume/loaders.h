@@ -51,7 +51,7 @@ struct SampleWindow {
 // a data file, or one file per slab of slices; no line skip), MetaImage (plain, or compressed with a
 // known HeaderSize) — only the window's are read: a plain file's rows of the window by their byte
 // ranges, a compressed stream inflated whole keeping only the window's rows, a file holding none of
-// the window's rows not opened. Other formats and layouts are read whole and the window cut from
+// the window's rows not opened. Binary legacy VTK too. Other formats and layouts are read whole and the window cut from
 // them. A window not within the volume is an InputError naming the file; OpenVDB volumes have no
 // window yet.
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {},
