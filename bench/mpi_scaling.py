@@ -70,7 +70,7 @@ def main():
                 busy.append(sn["busy_seconds_per_rank"])
                 if a.data_parallel:
                     traffic.append((sum(sn["rays_asked_per_rank"]), sum(sn["bytes_sent_per_rank"]),
-                                    sn["exchange_seconds_per_rank"]))
+                                    sn["exchange_seconds_per_rank"], sn["rays_received_per_rank"]))
             m1, mn = statistics.median(one), statistics.median(many)
             busyMedian = [statistics.median(b[r] for b in busy) for r in range(a.ranks)]
             print("| %s | %.3f | %.3f | **%.2f** | %.0f | %.3f | %s | %s |" % (
@@ -78,8 +78,9 @@ def main():
                 statistics.median(balance), " / ".join("%.2f" % b for b in busyMedian), "yes" if same else "NO"))
             if traffic:
                 t = traffic[len(traffic) // 2]
-                print("  data-parallel: %d rays asked of every rank, %.1f MiB sent per frame, exchange seconds per rank %s"
-                      % (t[0], t[1] / 2**20, " / ".join("%.2f" % x for x in t[2])))
+                print("  data-parallel: %d rays of all ranks' paths, %.1f MiB sent per frame, rays received per rank %s, "
+                      "seconds waiting per rank %s" % (t[0], t[1] / 2**20, " / ".join("%d" % x for x in t[3]),
+                                                       " / ".join("%.2f" % x for x in t[2])))
             print("  runs: 1 process %s; %d ranks %s" % (", ".join("%.3f" % x for x in one), a.ranks,
                                                        ", ".join("%.3f" % x for x in many)), file=sys.stderr)
 
