@@ -814,7 +814,8 @@ void readNiftiBytes(const std::string& image, bool gzip, size_t offset, uint8_t*
                                     std::to_string(offset) + ", the header of " + file + " asks for " + std::to_string(count));
 }
 
-// Converts `n` samples of a NIfTI type (file order of bytes in `swap`) to float32, scaled.
+// Converts `n` samples of type T (file order of bytes in `swap`) to float32, scaled: a NIfTI's
+// samples, and a layer of any file read in runs (slope 1, intercept 0: the exact float value).
 template <typename T>
 void toFloat(const uint8_t* in, float* out, size_t n, bool swap, double slope, double inter) {
   for (size_t i = 0; i < n; ++i) {
@@ -1115,22 +1116,12 @@ BrickGrid runsBrickRanges(const SampleRuns& s) {
   std::vector<float> values(layer / size);
   // The layer in `bytes` as float, in native byte order.
   auto toFloats = [&]() {
-    auto convert = [&](auto sample) {
-      using T = decltype(sample);
-      for (size_t i = 0; i < values.size(); ++i) {
-        uint8_t b[sizeof(T)];
-        std::memcpy(b, bytes.data() + i * sizeof(T), sizeof(T));
-        if (s.bigEndian) std::reverse(b, b + sizeof(T));
-        T v;
-        std::memcpy(&v, b, sizeof(T));
-        values[i] = float(v);
-      }
-    };
+    const size_t n = values.size();
     switch (s.type) {
-      case ScalarType::UInt8: convert(uint8_t()); break;
-      case ScalarType::UInt16: convert(uint16_t()); break;
-      case ScalarType::Int16: convert(int16_t()); break;
-      case ScalarType::Float32: convert(float()); break;
+      case ScalarType::UInt8: toFloat<uint8_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
+      case ScalarType::UInt16: toFloat<uint16_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
+      case ScalarType::Int16: toFloat<int16_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
+      case ScalarType::Float32: toFloat<float>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
     }
     return values.data();
   };
@@ -1208,7 +1199,7 @@ std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout&
     const std::vector<std::string> files = h->files.empty() ? std::vector<std::string>{path} : h->files;
     s.runBytes = total / files.size();
     for (const std::string& file : files) {
-      const size_t start = file == path && h->files.empty() ? h->dataStart : 0;
+      const size_t start = h->files.empty() ? h->dataStart : 0;  // attached data, or a data file of its own
       s.runs.push_back({file, start + (gzip ? 0 : skip), gzip ? skip : 0, gzip, h->byteSkip == -1});
     }
     return s;
