@@ -504,7 +504,7 @@ RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
 
 // This rank's window of volume v. A procedural field is evaluated twice, once for its bricks'
 // ranges (nothing kept) and once for the window; a file whose samples lie in runs of bytes (raw,
-// NRRD, MetaImage, binary VTK: fileBrickRanges) is read twice, for the ranges and for the window: the rank
+// NRRD, MetaImage, binary VTK, NIfTI: fileBrickRanges) is read twice, for the ranges and for the window: the rank
 // never holds more than its window (and a compressed file's compressed bytes). Other files are
 // read whole and the window cut from them (docs/distributed.md).
 VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {

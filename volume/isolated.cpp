@@ -36,12 +36,14 @@ constexpr bool kAddressSanitizer = false;
 constexpr bool kAddressSanitizer = false;
 #endif
 
-// The fixed part of the report: kind, dims, origin, spacing, the 3x4 placement, array sizes.
+// The fixed part of a volume's report: kind, dims, the window held, origin, spacing, the 3x4
+// placement, array sizes.
 struct Header {
   char tag[2];  // "ok"
   int32_t sparse;
   int32_t type;  // ScalarType of a dense grid
   int32_t dims[3];
+  int32_t first[3], extent[3];  // the samples held (a window's; else 0 and dims)
   int32_t bricks[3];
   double origin[3], spacing[3], toWorld[12];
   uint64_t blockCount, uniformCount;
@@ -59,7 +61,8 @@ bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
   return true;
 }
 
-[[noreturn]] void childMain(int samplesFd, int reportFd, const std::string& path, const std::function<VolumeFile()>& read) {
+[[noreturn]] void childMain(int bytesFd, int reportFd, const std::string& path,
+                            const std::function<std::string(int)>& work) {
   // The parent's handlers (SIGINT's, a fuzzer's) are not the child's business; a crash here
   // ends the child, which the parent reports. The library's own messages are muted.
   for (int sig : {SIGABRT, SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGINT, SIGTERM}) std::signal(sig, SIG_DFL);
@@ -76,35 +79,7 @@ bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
   }
   std::string report;
   try {
-    const VolumeFile v = read();
-    Header h{};
-    h.tag[0] = 'o', h.tag[1] = 'k';
-    const Grid& g = v.grid;
-    for (int a = 0; a < 3; ++a) {
-      h.dims[a] = g.dims()[a];
-      h.origin[a] = g.origin()[a];
-      h.spacing[a] = g.spacing()[a];
-    }
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 4; ++c) h.toWorld[r * 4 + c] = v.toWorld.m[r][c];
-    off_t at = 0;
-    bool ok = true;
-    if (const SparseSamples* s = g.sparse()) {
-      h.sparse = 1;
-      for (int a = 0; a < 3; ++a) h.bricks[a] = s->bricks[a];
-      h.blockCount = s->blockCount;
-      h.uniformCount = s->uniformCount;
-      ok = writeAll(samplesFd, s->slot, s->brickCount() * 4, &at) &&
-           writeAll(samplesFd, s->blocks, s->blockCount * SparseSamples::kBlockSize * 4, &at) &&
-           writeAll(samplesFd, s->uniform, s->uniformCount * 4, &at);
-    } else {
-      h.type = int32_t(g.type());
-      ok = writeAll(samplesFd, g.data(), g.bytes(), &at);
-    }
-    if (!ok) _exit(3);
-    report.assign(reinterpret_cast<const char*>(&h), sizeof h);
-    report += v.format + '\n';
-    for (const std::string& note : v.notes) report += note + '\n';
+    report = "ok" + work(bytesFd);
   } catch (const InputError& e) {
     report = std::string("er") + e.what();
   } catch (const std::bad_alloc&) {
@@ -115,23 +90,58 @@ bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
   _exit(writeAll(reportFd, report.data(), report.size()) ? 0 : 3);
 }
 
+// A volume's samples into `fd`, the rest as the report (after "ok").
+std::string sendVolume(const VolumeFile& v, int fd) {
+  Header h{};
+  h.tag[0] = 'o', h.tag[1] = 'k';
+  const Grid& g = v.grid;
+  for (int a = 0; a < 3; ++a) {
+    h.dims[a] = g.dims()[a];
+    h.first[a] = g.windowFirst()[a];
+    h.extent[a] = g.windowExtent()[a];
+    h.origin[a] = g.origin()[a];
+    h.spacing[a] = g.spacing()[a];
+  }
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) h.toWorld[r * 4 + c] = v.toWorld.m[r][c];
+  off_t at = 0;
+  bool ok = true;
+  if (const SparseSamples* s = g.sparse()) {
+    h.sparse = 1;
+    for (int a = 0; a < 3; ++a) h.bricks[a] = s->bricks[a];
+    h.blockCount = s->blockCount;
+    h.uniformCount = s->uniformCount;
+    ok = writeAll(fd, s->slot, s->brickCount() * 4, &at) &&
+         writeAll(fd, s->blocks, s->blockCount * SparseSamples::kBlockSize * 4, &at) &&
+         writeAll(fd, s->uniform, s->uniformCount * 4, &at);
+  } else {
+    h.type = int32_t(g.type());
+    ok = writeAll(fd, g.data(), g.bytes(), &at);
+  }
+  if (!ok) _exit(3);
+  std::string report(reinterpret_cast<const char*>(&h) + 2, sizeof h - 2);
+  report += v.format + '\n';
+  for (const std::string& note : v.notes) report += note + '\n';
+  return report;
+}
+
 }  // namespace
 
-VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read) {
+ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int)>& work) {
   const std::string malformed = std::string(library) +
                                 " stopped reading it (an assertion, a crash or no memory inside the library): a malformed file";
-  const int samplesFd = memfd_create("isotrace-volume", MFD_CLOEXEC);
+  const int bytesFd = memfd_create("isotrace-volume", MFD_CLOEXEC);
   int pipeFds[2];
-  if (samplesFd < 0 || pipe2(pipeFds, O_CLOEXEC) != 0) throw InputError(path, "", "cannot start a reader process");
+  if (bytesFd < 0 || pipe2(pipeFds, O_CLOEXEC) != 0) throw InputError(path, "", "cannot start a reader process");
   struct Closer {
     int fd;
     ~Closer() { close(fd); }
-  } closer{samplesFd};
+  } closer{bytesFd};
   const pid_t pid = fork();
   if (pid < 0) throw InputError(path, "", "cannot start a reader process");
   if (pid == 0) {
     close(pipeFds[0]);
-    childMain(samplesFd, pipeFds[1], path, read);
+    childMain(bytesFd, pipeFds[1], path, work);
   }
   close(pipeFds[1]);
   std::string report;
@@ -147,36 +157,54 @@ VolumeFile readInChildProcess(const std::string& path, const char* library, cons
   }
   const bool exited = WIFEXITED(status) && WEXITSTATUS(status) == 0;
   if (exited && report.compare(0, 2, "er") == 0) throw InputError(report.substr(2));
-  if (!exited || report.size() < sizeof(Header) || report.compare(0, 2, "ok") != 0) throw InputError(path, "", malformed);
+  if (!exited || report.compare(0, 2, "ok") != 0) throw InputError(path, "", malformed);
+  ChildOutput out;
+  out.report = report.substr(2);
+  struct stat info;
+  if (fstat(bytesFd, &info) != 0) throw InputError(path, "", malformed);
+  out.size = size_t(info.st_size);
+  if (out.size > 0) {
+    void* map = mmap(nullptr, out.size, PROT_READ, MAP_SHARED, bytesFd, 0);
+    if (map == MAP_FAILED) throw InputError(path, "", "cannot map the samples its reader made");
+    const size_t size = out.size;
+    out.bytes = std::shared_ptr<const void>(map, [size](const void* p) { munmap(const_cast<void*>(p), size); });
+  }
+  return out;
+}
+
+VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read) {
+  const ChildOutput child = runInChildProcess(path, library, [&](int fd) { return sendVolume(read(), fd); });
+  const std::string malformed = std::string(library) + " gave back a malformed volume";
   Header h;
-  std::memcpy(&h, report.data(), sizeof h);
-  const Vec3i dims{h.dims[0], h.dims[1], h.dims[2]};
+  if (child.report.size() < sizeof h - 2) throw InputError(path, "", malformed);
+  h.tag[0] = 'o', h.tag[1] = 'k';
+  std::memcpy(reinterpret_cast<char*>(&h) + 2, child.report.data(), sizeof h - 2);
+  const Vec3i dims{h.dims[0], h.dims[1], h.dims[2]}, first{h.first[0], h.first[1], h.first[2]},
+      extent{h.extent[0], h.extent[1], h.extent[2]};
   const size_t brickCount = size_t(h.bricks[0]) * size_t(h.bricks[1]) * size_t(h.bricks[2]);
   const ScalarType type = ScalarType(h.type);
   const size_t bytes = h.sparse ? (brickCount + h.blockCount * SparseSamples::kBlockSize + h.uniformCount) * 4
-                                : size_t(dims.x) * size_t(dims.y) * size_t(dims.z) * scalarTypeSize(type);
-  struct stat info;
-  if (fstat(samplesFd, &info) != 0 || size_t(info.st_size) != bytes || bytes == 0) throw InputError(path, "", malformed);
-  void* map = mmap(nullptr, bytes, PROT_READ, MAP_SHARED, samplesFd, 0);
-  if (map == MAP_FAILED) throw InputError(path, "", "cannot map the samples its reader made");
-  std::shared_ptr<const void> mapping(map, [bytes](const void* p) { munmap(const_cast<void*>(p), bytes); });
+                                : size_t(extent.x) * size_t(extent.y) * size_t(extent.z) * scalarTypeSize(type);
+  if (child.size != bytes || bytes == 0) throw InputError(path, "", malformed);
   VolumeFile v;
   const Vec3d origin{h.origin[0], h.origin[1], h.origin[2]}, spacing{h.spacing[0], h.spacing[1], h.spacing[2]};
   if (h.sparse) {
     auto s = std::make_shared<SparseSamples>();
     s->bricks = {h.bricks[0], h.bricks[1], h.bricks[2]};
-    s->slot = static_cast<const int32_t*>(map);
+    s->slot = static_cast<const int32_t*>(child.bytes.get());
     s->blocks = reinterpret_cast<const float*>(s->slot + brickCount);
     s->uniform = s->blocks + h.blockCount * SparseSamples::kBlockSize;
     s->blockCount = h.blockCount;
     s->uniformCount = h.uniformCount;
-    s->owner = mapping;
+    s->owner = child.bytes;
     v.grid = Grid(dims, std::move(s), origin, spacing);
+  } else if (extent == dims) {
+    v.grid = Grid(dims, type, child.bytes, origin, spacing);
   } else {
-    v.grid = Grid(dims, type, mapping, origin, spacing);
+    v.grid = Grid(dims, type, child.bytes, first, extent, origin, spacing);
   }
   v.toWorld = Transform::fromRows(h.toWorld);
-  std::istringstream lines(report.substr(sizeof h));
+  std::istringstream lines(child.report.substr(sizeof h - 2));
   std::getline(lines, v.format);
   for (std::string line; std::getline(lines, line);) v.notes.push_back(line);
   return v;

@@ -827,8 +827,50 @@ void toFloat(const uint8_t* in, float* out, size_t n, bool swap, double slope, d
     out[i] = float(double(v) * slope + inter);
   }
 }
+using ToFloat = void (*)(const uint8_t*, float*, size_t, bool, double, double);
 
-VolumeFile loadNifti(const std::string& path) {
+ToFloat toFloatOf(ScalarType type) {
+  switch (type) {
+    case ScalarType::UInt8: return toFloat<uint8_t>;
+    case ScalarType::UInt16: return toFloat<uint16_t>;
+    case ScalarType::Int16: return toFloat<int16_t>;
+    case ScalarType::Float32: break;
+  }
+  return toFloat<float>;
+}
+
+// What a NIfTI header says of its samples and where they lie (libnifti reads it: in a child
+// process, as it overflows a stack buffer on some malformed headers).
+struct NiftiLayout {
+  Vec3i dims;
+  int datatype = 0;
+  size_t sampleSize = 0;  // bytes of one sample in the file
+  ScalarType native = ScalarType::Float32;  // the grid's type
+  bool direct = true;     // the file's samples are the grid's, no conversion
+  double slope = 1, inter = 0;  // applied where not direct
+  size_t offset = 0;      // of the samples in the image file (in its inflated stream when gzip)
+  bool gzip = false, swap = false;
+  double affine[3][4] = {};
+  std::string image, where, format;
+  std::vector<std::string> notes;
+};
+
+ToFloat niftiToFloat(int datatype) {
+  switch (datatype) {
+    case DT_UINT8: return toFloat<uint8_t>;
+    case DT_INT8: return toFloat<int8_t>;
+    case DT_INT16: return toFloat<int16_t>;
+    case DT_UINT16: return toFloat<uint16_t>;
+    case DT_INT32: return toFloat<int32_t>;
+    case DT_UINT32: return toFloat<uint32_t>;
+    case DT_INT64: return toFloat<int64_t>;
+    case DT_UINT64: return toFloat<uint64_t>;
+    case DT_FLOAT32: return toFloat<float>;
+  }
+  return toFloat<double>;
+}
+
+NiftiLayout readNiftiLayout(const std::string& path) {
   size_t fileSize;
   openFile(path, fileSize);  // missing file or a directory: the usual errors
   nifti_set_debug_level(0);
@@ -839,7 +881,7 @@ VolumeFile loadNifti(const std::string& path) {
   if (nim) std::free(nifti_read_header(path.c_str(), &version, 0));  // nifti_type tells the layout, not the version
   if (!nim)
     throw InputError(path, "header", "not a readable NIfTI-1 or NIfTI-2 header (or its image file is missing)");
-  VolumeFile out;
+  NiftiLayout out;
   out.format = nim->nifti_type == NIFTI_FTYPE_ANALYZE ? "ANALYZE 7.5" : version == 2 ? "NIfTI-2" : "NIfTI-1";
   int64_t frames = 1;
   for (int d = 4; d <= 7 && d <= nim->dim[0]; ++d) {
@@ -849,20 +891,19 @@ VolumeFile loadNifti(const std::string& path) {
   }
   for (int64_t n : {nim->nx, nim->ny, nim->nz})
     if (n < 1 || n > (1 << 20)) throw InputError(path, "dim", "each of the first three sizes must be 1 to 2^20");
-  const Vec3i dims{int(nim->nx), int(nim->ny), int(nim->nz)};
-  checkDims(dims, path, "dim");
+  out.dims = Vec3i{int(nim->nx), int(nim->ny), int(nim->nz)};
+  checkDims(out.dims, path, "dim");
   if (frames > 1) out.notes.push_back("frame 0 of " + std::to_string(frames) + " (a volume is one 3D frame)");
 
-  ScalarType native;
-  bool direct = true;
+  out.datatype = nim->datatype;
   switch (nim->datatype) {
-    case DT_UINT8: native = ScalarType::UInt8; break;
-    case DT_INT16: native = ScalarType::Int16; break;
-    case DT_UINT16: native = ScalarType::UInt16; break;
-    case DT_FLOAT32: native = ScalarType::Float32; break;
+    case DT_UINT8: out.native = ScalarType::UInt8; break;
+    case DT_INT16: out.native = ScalarType::Int16; break;
+    case DT_UINT16: out.native = ScalarType::UInt16; break;
+    case DT_FLOAT32: out.native = ScalarType::Float32; break;
     case DT_INT8: case DT_INT32: case DT_UINT32: case DT_INT64: case DT_UINT64: case DT_FLOAT64:
-      native = ScalarType::Float32;
-      direct = false;
+      out.native = ScalarType::Float32;
+      out.direct = false;
       break;
     default:
       throw InputError(path, "datatype", "NIfTI type " + niftiTypeName(nim->datatype) +
@@ -870,78 +911,112 @@ VolumeFile loadNifti(const std::string& path) {
   }
   int nbyper = 0, swapsize = 0;
   nifti_datatype_sizes(nim->datatype, &nbyper, &swapsize);
+  out.sampleSize = size_t(nbyper);
   // scl_slope 0 means "not scaled" (the standard); otherwise every value is slope * v + inter.
   const double slope = nim->scl_slope, inter = nim->scl_inter;
   const bool scaled = slope != 0 && std::isfinite(slope) && !(slope == 1 && inter == 0);
   if (slope != 0 && (!std::isfinite(slope) || !std::isfinite(inter)))
     throw InputError(path, "scl_slope", "scaling is not finite");
   if (scaled) {
-    direct = false;
-    native = ScalarType::Float32;
+    out.direct = false;
+    out.native = ScalarType::Float32;
+    out.slope = slope;
+    out.inter = inter;
     out.notes.push_back("values scaled by scl_slope " + std::to_string(slope) + ", scl_inter " + std::to_string(inter));
+  } else if (!out.direct) {
+    out.notes.push_back(niftiTypeName(nim->datatype) + " samples held as float32");
   }
-  const size_t voxels = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
-  const size_t fileBytes = voxels * size_t(nbyper);
-  const size_t gridBytes = checkedBytes(dims, native, path);
   if (nim->iname_offset < 0) throw InputError(path, "vox_offset", "is negative");
-  const std::string image = nim->iname ? nim->iname : path;
-  const bool gzip = nifti_is_gzfile(image.c_str());
-  const bool swap = nim->byteorder != nifti_short_order();
-
-  size_t imageSize;
-  openFile(image, imageSize);
-  if (gzip) checkInflatable(imageSize, fileBytes, path);
-  if (!gzip) {  // the size is known before anything is allocated
-    const size_t offset = size_t(nim->iname_offset);
-    if (imageSize < offset || imageSize - offset < fileBytes)
-      throw InputError(image, "", "holds " + std::to_string(imageSize > offset ? imageSize - offset : 0) +
-                                      " bytes of samples after byte " + std::to_string(offset) + ", the header of " +
-                                      path + " asks for " + std::to_string(fileBytes));
-  }
-  std::shared_ptr<uint8_t[]> samples = allocateSamples(gridBytes);
-  if (direct) {
-    readNiftiBytes(image, gzip, size_t(nim->iname_offset), samples.get(), fileBytes, path);
-    finishSamples(samples.get(), native, dims, swap, path);
-  } else {
-    Bytes raw(fileBytes);
-    readNiftiBytes(image, gzip, size_t(nim->iname_offset), raw.data(), fileBytes, path);
-    float* f = reinterpret_cast<float*>(samples.get());
-    const double s = scaled ? slope : 1, c = scaled ? inter : 0;
-    switch (nim->datatype) {
-      case DT_UINT8: toFloat<uint8_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_INT8: toFloat<int8_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_INT16: toFloat<int16_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_UINT16: toFloat<uint16_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_INT32: toFloat<int32_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_UINT32: toFloat<uint32_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_INT64: toFloat<int64_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_UINT64: toFloat<uint64_t>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_FLOAT32: toFloat<float>(raw.data(), f, voxels, swap, s, c); break;
-      case DT_FLOAT64: toFloat<double>(raw.data(), f, voxels, swap, s, c); break;
-    }
-    if (!direct && !scaled) out.notes.push_back(niftiTypeName(nim->datatype) + " samples held as float32");
-    finishSamples(samples.get(), native, dims, false, path);  // NaN, Inf and float overflow are errors
-  }
-  out.grid = Grid(dims, native, std::shared_ptr<const void>(samples, samples.get()));
+  out.offset = size_t(nim->iname_offset);
+  out.image = nim->iname ? nim->iname : path;
+  out.gzip = nifti_is_gzfile(out.image.c_str());
+  out.swap = nim->byteorder != nifti_short_order();
 
   // Where the voxels are: the sform if it has a code, else the qform, else the voxel sizes
   // alone (ANALYZE's convention, and NIfTI's "method 1").
   const bool sform = nim->sform_code > 0, qform = !sform && nim->qform_code > 0;
-  double a[3][4] = {};
   if (sform || qform) {
     const nifti_dmat44& m = sform ? nim->sto_xyz : nim->qto_xyz;
     for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 4; ++c) a[r][c] = m.m[r][c];
+      for (int c = 0; c < 4; ++c) out.affine[r][c] = m.m[r][c];
   } else {
-    a[0][0] = nim->dx > 0 ? nim->dx : 1;
-    a[1][1] = nim->dy > 0 ? nim->dy : 1;
-    a[2][2] = nim->dz > 0 ? nim->dz : 1;
+    out.affine[0][0] = nim->dx > 0 ? nim->dx : 1;
+    out.affine[1][1] = nim->dy > 0 ? nim->dy : 1;
+    out.affine[2][2] = nim->dz > 0 ? nim->dz : 1;
   }
-  const std::string where = sform ? "srow_x/y/z" : qform ? "quatern_b/c/d, qoffset" : "pixdim";
-  placeByAffine(a, out.grid, out.toWorld, path, where);
+  out.where = sform ? "srow_x/y/z" : qform ? "quatern_b/c/d, qoffset" : "pixdim";
   out.notes.push_back(std::string(sform ? "sform" : qform ? "qform" : "no affine, pixdim only") + " (" +
                       (sform ? nifti_xform_string(nim->sform_code) : qform ? nifti_xform_string(nim->qform_code) : "voxel sizes") +
-                      "): " + describeAffine(a));
+                      "): " + describeAffine(out.affine));
+  return out;
+}
+
+// A NiftiLayout through a child process's report: its numbers, then its strings one per line
+// (a file name holding a line break is refused).
+std::string packNiftiLayout(const NiftiLayout& l) {
+  std::string s;
+  auto put = [&](const auto& v) { s.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  put(l.dims), put(l.datatype), put(l.sampleSize), put(l.native), put(l.direct), put(l.slope), put(l.inter);
+  put(l.offset), put(l.gzip), put(l.swap), put(l.affine);
+  for (const std::string* text : {&l.image, &l.where, &l.format}) {
+    if (text->find('\n') != std::string::npos) throw InputError(l.image, "", "a file name with a line break");
+    s += *text + '\n';
+  }
+  for (const std::string& note : l.notes) s += note + '\n';
+  return s;
+}
+
+NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path) {
+  NiftiLayout l;
+  size_t at = 0;
+  auto get = [&](auto& v) {
+    if (s.size() - at < sizeof v) throw InputError(path, "", "libnifti's reader gave back a malformed header");
+    std::memcpy(&v, s.data() + at, sizeof v);
+    at += sizeof v;
+  };
+  get(l.dims), get(l.datatype), get(l.sampleSize), get(l.native), get(l.direct), get(l.slope), get(l.inter);
+  get(l.offset), get(l.gzip), get(l.swap), get(l.affine);
+  std::istringstream lines(s.substr(at));
+  std::getline(lines, l.image);
+  std::getline(lines, l.where);
+  std::getline(lines, l.format);
+  for (std::string line; std::getline(lines, line);) l.notes.push_back(line);
+  return l;
+}
+
+// The volume of a NIfTI layout: the samples read here like raw ones, straight into the grid for
+// the types the grid holds, through one float32 conversion for the others or where scl_slope
+// scales them.
+VolumeFile loadNifti(const std::string& path) {
+  const NiftiLayout l = readNiftiLayout(path);
+  VolumeFile out;
+  out.format = l.format;
+  out.notes = l.notes;
+  const Vec3i dims = l.dims;
+  const size_t voxels = size_t(dims.x) * size_t(dims.y) * size_t(dims.z);
+  const size_t fileBytes = voxels * l.sampleSize;
+  const size_t gridBytes = checkedBytes(dims, l.native, path);
+  size_t imageSize;
+  openFile(l.image, imageSize);
+  if (l.gzip) checkInflatable(imageSize, fileBytes, path);
+  if (!l.gzip) {  // the size is known before anything is allocated
+    if (imageSize < l.offset || imageSize - l.offset < fileBytes)
+      throw InputError(l.image, "", "holds " + std::to_string(imageSize > l.offset ? imageSize - l.offset : 0) +
+                                        " bytes of samples after byte " + std::to_string(l.offset) + ", the header of " +
+                                        path + " asks for " + std::to_string(fileBytes));
+  }
+  std::shared_ptr<uint8_t[]> samples = allocateSamples(gridBytes);
+  if (l.direct) {
+    readNiftiBytes(l.image, l.gzip, l.offset, samples.get(), fileBytes, path);
+    finishSamples(samples.get(), l.native, dims, l.swap, path);
+  } else {
+    Bytes raw(fileBytes);
+    readNiftiBytes(l.image, l.gzip, l.offset, raw.data(), fileBytes, path);
+    niftiToFloat(l.datatype)(raw.data(), reinterpret_cast<float*>(samples.get()), voxels, l.swap, l.slope, l.inter);
+    finishSamples(samples.get(), l.native, dims, false, path);  // NaN, Inf and float overflow are errors
+  }
+  out.grid = Grid(dims, l.native, std::shared_ptr<const void>(samples, samples.get()));
+  placeByAffine(l.affine, out.grid, out.toWorld, path, l.where);
   return out;
 }
 
@@ -973,6 +1048,10 @@ std::ifstream openRawFile(const std::string& path, const Vec3i& dims, ScalarType
   return in;
 }
 
+bool isNiftiName(const std::string& name) {
+  return endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz");
+}
+
 // Whether a (lower-case) file name is a raw volume's: .raw, .bin, .dat, plain or .gz.
 bool isRawName(const std::string& name) {
   for (const char* ext : {".raw", ".bin", ".dat"})
@@ -985,7 +1064,8 @@ bool isRawName(const std::string& name) {
 // plain or a gzip/zlib stream: what a data-parallel rank reads its window and the bricks' ranges
 // from without ever holding the rest. Raw files; NRRD with raw or gzip encoding and no line skip
 // (attached data, a data file, or a list or pattern of them); MetaImage but a compressed stream
-// whose samples are its last bytes; binary legacy VTK.
+// whose samples are its last bytes; binary legacy VTK; NIfTI (plain or gzip; frame 0), whose
+// samples of a type the grid does not hold, or scaled, are converted to float32 as they are read.
 struct SampleRuns {
   struct Run {
     std::string file;
@@ -993,15 +1073,21 @@ struct SampleRuns {
     size_t skip = 0;         // compressed: the stream's bytes before the samples
     bool compressed = false;
     bool atEnd = false;      // plain: the samples are the file's last bytes (start is then a least)
-    bool moreAfter = false;  // plain: the file may hold more bytes after the samples
+    bool moreAfter = false;  // the file (or stream) may hold more bytes after the samples
   };
   std::vector<Run> runs;
   size_t runBytes = 0;  // of samples, in each run
   Vec3i dims;
-  ScalarType type = ScalarType::UInt8;
-  bool bigEndian = false;
+  ScalarType type = ScalarType::UInt8;  // the grid's
+  size_t sampleSize = 0;                // bytes of a sample in the files (0: the grid type's)
+  bool bigEndian = false;               // the files' samples are in the other byte order
+  ToFloat convert = nullptr;            // the files' samples to the grid's float32 (null: as they are)
+  double slope = 1, inter = 0;          // of `convert`
   Vec3d origin{0, 0, 0}, spacing{1, 1, 1};
-  const char* format = "raw";
+  Transform toWorld;
+  std::string format = "raw";
+  std::vector<std::string> notes;
+  size_t fileSampleSize() const { return sampleSize ? sampleSize : scalarTypeSize(type); }
 };
 
 // Opens a run's file; the byte where its samples (or stream) begin. Its size is checked first: a
@@ -1036,14 +1122,20 @@ void inflateRun(const SampleRuns& s, const SampleRuns::Run& r, size_t start, Sin
   stream.erase(stream.begin(), stream.begin() + long(std::min(start, stream.size())));
   const size_t total = r.skip + s.runBytes;
   size_t produced = 0;
-  inflateStream(stream, r.file, [&](const uint8_t* p, size_t n) {
-    if (n > total - produced)
-      throw InputError(r.file, "", "decompressed data is larger than the " + std::to_string(total) + " bytes " +
-                                       layoutName(s.dims, s.type) + " needs");
-    const size_t a = std::max(produced, r.skip), b = produced + n;
-    if (b > a) sink(a - r.skip, p + (a - produced), b - a);
-    produced = b;
-  });
+  struct Done {};
+  try {
+    inflateStream(stream, r.file, [&](const uint8_t* p, size_t n) {
+      if (n > total - produced && !r.moreAfter)
+        throw InputError(r.file, "", "decompressed data is larger than the " + std::to_string(total) + " bytes " +
+                                         layoutName(s.dims, s.type) + " needs");
+      n = std::min(n, total - produced);
+      const size_t a = std::max(produced, r.skip), b = produced + n;
+      if (b > a) sink(a - r.skip, p + (a - produced), b - a);
+      produced = b;
+      if (produced == total && r.moreAfter) throw Done{};  // the rest of the stream is not inflated
+    });
+  } catch (const Done&) {
+  }
   if (produced != total)
     throw InputError(r.file, "", "decompressed data has " + std::to_string(produced) + " bytes but " +
                                      layoutName(s.dims, s.type) + " needs " + std::to_string(total));
@@ -1053,7 +1145,7 @@ void inflateRun(const SampleRuns& s, const SampleRuns::Run& r, size_t start, Sin
 // byte ranges, a compressed run inflated whole but only the window's rows kept; a run holding no
 // row of the window is not opened. Errors about the samples name `file`.
 Grid readRunsWindow(const SampleRuns& s, const SampleWindow& w, const std::string& file) {
-  const size_t size = scalarTypeSize(s.type);
+  const size_t size = s.fileSampleSize();
   const size_t row = size_t(w.extent.x) * size, rows = size_t(w.extent.y) * size_t(w.extent.z);
   // The volume's byte offset of the window's row r (y fastest, then z).
   auto rowStart = [&](size_t r) {
@@ -1097,7 +1189,13 @@ Grid readRunsWindow(const SampleRuns& s, const SampleWindow& w, const std::strin
       readExactly(in, dst + r * row + (a - rowStart(r)), b - a, run.file);
     }
   }
-  finishSamples(dst, s.type, w.extent, s.bigEndian, file, w.first);
+  if (s.convert) {  // to float32, in a second buffer
+    std::shared_ptr<uint8_t[]> floats = allocateSamples(rows * size_t(w.extent.x) * sizeof(float));
+    s.convert(dst, reinterpret_cast<float*>(floats.get()), rows * size_t(w.extent.x), s.bigEndian, s.slope, s.inter);
+    samples = std::move(floats);
+    dst = samples.get();
+  }
+  finishSamples(dst, s.type, w.extent, s.bigEndian && !s.convert, file, w.first);
   Grid g(s.dims, s.type, std::shared_ptr<const void>(samples, dst), w.first, w.extent);
   g.setOrigin(s.origin);
   g.setSpacing(s.spacing);
@@ -1111,18 +1209,13 @@ BrickGrid runsBrickRanges(const SampleRuns& s) {
     size_t start;
     openRun(s, run, start);
   }
-  const size_t size = scalarTypeSize(s.type), layer = size_t(s.dims.x) * size_t(s.dims.y) * size;
+  const size_t size = s.fileSampleSize(), layer = size_t(s.dims.x) * size_t(s.dims.y) * size;
   std::vector<uint8_t> bytes;
   std::vector<float> values(layer / size);
-  // The layer in `bytes` as float, in native byte order.
+  // The layer in `bytes` as float, in native byte order: the grid's values.
+  const ToFloat convert = s.convert ? s.convert : toFloatOf(s.type);
   auto toFloats = [&]() {
-    const size_t n = values.size();
-    switch (s.type) {
-      case ScalarType::UInt8: toFloat<uint8_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
-      case ScalarType::UInt16: toFloat<uint16_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
-      case ScalarType::Int16: toFloat<int16_t>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
-      case ScalarType::Float32: toFloat<float>(bytes.data(), values.data(), n, s.bigEndian, 1, 0); break;
-    }
+    convert(bytes.data(), values.data(), values.size(), s.bigEndian, s.slope, s.inter);
     return values.data();
   };
   return BrickGrid::fromStream(s.dims, [&](auto&& layerDone) {
@@ -1175,9 +1268,25 @@ Bytes readHead(const std::string& path, size_t limit, bool& whole) {
 std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout) {
   const std::string name = lower(fs::path(path).filename().string());
   const bool nrrd = endsWith(name, ".nrrd") || endsWith(name, ".nhdr"), meta = endsWith(name, ".mhd") || endsWith(name, ".mha");
-  const bool vtk = endsWith(name, ".vtk");
-  if ((!isRawName(name) && !nrrd && !meta && !vtk) || checkInputFile(path, "file").stream) return std::nullopt;
+  const bool vtk = endsWith(name, ".vtk"), nifti = isNiftiName(name);
+  if ((!isRawName(name) && !nrrd && !meta && !vtk && !nifti) || checkInputFile(path, "file").stream) return std::nullopt;
   SampleRuns s;
+  if (nifti) {
+    const NiftiLayout l = unpackNiftiLayout(
+        runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report, path);
+    s.dims = l.dims, s.type = l.native, s.sampleSize = l.sampleSize, s.bigEndian = l.swap;
+    if (!l.direct) s.convert = niftiToFloat(l.datatype), s.slope = l.slope, s.inter = l.inter;
+    s.format = l.format;
+    s.notes = l.notes;
+    Grid placed;
+    placeByAffine(l.affine, placed, s.toWorld, path, l.where);
+    s.origin = placed.origin(), s.spacing = placed.spacing();
+    s.runBytes = size_t(l.dims.x) * size_t(l.dims.y) * size_t(l.dims.z) * l.sampleSize;  // dims checked: no overflow
+    SampleRuns::Run run{l.image, l.gzip ? 0 : l.offset, l.gzip ? l.offset : 0, l.gzip, false};
+    run.moreAfter = true;  // more frames, or padding
+    s.runs.push_back(run);
+    return s;
+  }
   if (isRawName(name)) {
     rawLayoutOf(path, layout, s.dims, s.type);
     bool gzip;
@@ -1351,7 +1460,9 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
       checkWindow(*window, runs->dims, path);
       VolumeFile f;
       f.grid = readRunsWindow(*runs, *window, path);
+      f.toWorld = runs->toWorld;
       f.format = runs->format;
+      f.notes = runs->notes;
       return f;
     }
     // Data not in runs (other formats, ASCII, a pipe...): read whole, keep the window.
@@ -1374,7 +1485,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (endsWith(name, ".nrrd") || endsWith(name, ".nhdr")) return wrap(loadNrrd(path), "NRRD");
   if (endsWith(name, ".mhd") || endsWith(name, ".mha")) return wrap(loadMetaImage(path), "MetaImage");
   if (endsWith(name, ".vtk")) return wrap(loadVtk(path), "VTK");
-  if (endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz"))
+  if (isNiftiName(name))
     // libnifti overflows a stack buffer on some malformed headers: it reads in a child process.
     return readInChildProcess(path, "libnifti", [&] { return loadNifti(path); });
   if (isRawName(name)) return wrap(loadRaw(path, layout), "raw");

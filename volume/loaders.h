@@ -51,7 +51,9 @@ struct SampleWindow {
 // a data file, or one file per slab of slices; no line skip), MetaImage (plain, or compressed with a
 // known HeaderSize) — only the window's are read: a plain file's rows of the window by their byte
 // ranges, a compressed stream inflated whole keeping only the window's rows, a file holding none of
-// the window's rows not opened. Binary legacy VTK too. Other formats and layouts are read whole and the window cut from
+// the window's rows not opened. Binary legacy VTK and NIfTI (its header through libnifti in a child
+// process; samples of types the grid does not hold, or scaled, converted to float32 as they are
+// read) too. Other formats and layouts are read whole and the window cut from
 // them. A window not within the volume is an InputError naming the file; OpenVDB volumes have no
 // window yet.
 VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {},
@@ -84,9 +86,18 @@ void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const s
                    const std::string& where);
 // Runs `read` in a child process and returns its volume (volume/isolated.cpp): for libraries
 // that abort, crash or allocate without bound on malformed files (GDCM, OpenVDB, libnifti). The
-// samples come back through shared memory the parent maps; the child's InputError comes back
-// as is, its death as an InputError naming `library` and the file.
+// samples (of a window too) come back through shared memory the parent maps; the child's
+// InputError comes back as is, its death as an InputError naming `library` and the file.
 VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read);
+// The same for anything else such a library reads (a header alone, a volume's brick ranges):
+// `work(fd)` runs in the child, returns a report and may write bytes to `fd`; the parent gets the
+// report and those bytes, mapped (null when none). Errors as above.
+struct ChildOutput {
+  std::string report;
+  std::shared_ptr<const void> bytes;
+  size_t size = 0;
+};
+ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int fd)>& work);
 
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
 std::string describeAffine(const double a[3][4]);
