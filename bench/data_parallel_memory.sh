@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# bench/data_parallel_memory.sh [N] [RANKS] [nrrd]: what a data-parallel render saves in memory. An
+# bench/data_parallel_memory.sh [N] [RANKS] [nrrd|nifti]: what a data-parallel render saves in memory. An
 # N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) — or with `nrrd`, an N^3 uint16
-# gyroid written as a NRRD of one file per slice (N = 1024: 2 GiB; python3-numpy) — rendered by one process and by
+# gyroid written as a NRRD of one file per slice (N = 1024: 2 GiB; python3-numpy), with `nifti` as
+# one NIfTI-1 file of int16 samples scaled by scl_slope (2 GiB in the file, float32 in memory: 4 GiB;
+# python3-nibabel) — rendered by one process and by
 # RANKS ranks with --data-parallel (mpirun, oversubscribed if the machine has fewer cores); prints
 # each process's peak resident memory (GNU time), the process's own base (the same render of an
 # 8^3 volume), each rank's share of the single process's peak beyond that base, and whether the
@@ -14,7 +16,8 @@ ranks=${2:-4}
 kind=${3:-procedural}
 [[ "$n" =~ ^[0-9]+$ && "$ranks" =~ ^[0-9]+$ && "$n" -ge 16 && "$ranks" -ge 2 ]] ||
   { echo "data_parallel_memory: expected N >= 16 and RANKS >= 2" >&2; exit 2; }
-[[ "$kind" == procedural || "$kind" == nrrd ]] || { echo "data_parallel_memory: the third argument is 'nrrd' or nothing" >&2; exit 2; }
+[[ "$kind" == procedural || "$kind" == nrrd || "$kind" == nifti ]] ||
+  { echo "data_parallel_memory: the third argument is 'nrrd', 'nifti' or nothing" >&2; exit 2; }
 isotrace=${ISOTRACE:-build/isotrace}
 [ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 work=$(mktemp -d)
@@ -38,8 +41,36 @@ open(folder + "/field.nhdr", "w").write(
     "data file: slice.%%04d 0 %d 1\n" % (n, n, n, n - 1))
 PY
 }
+# An N^3 gyroid ball as one NIfTI-1 file: int16 samples, scaled by scl_slope 0.5, scl_inter -100
+# (the surface at -100).
+writeNifti() {  # RESOLUTION FOLDER
+  mkdir -p "$2"
+  /usr/bin/python3 - "$1" "$2" <<'PY'
+import sys, numpy as np, nibabel as nib
+n, folder = int(sys.argv[1]), sys.argv[2]
+h = nib.Nifti1Header()
+h.set_data_shape((n, n, n))
+h.set_data_dtype(np.int16)
+h.set_slope_inter(0.5, -100)
+h["vox_offset"] = 352
+c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
+y, x = np.meshgrid(c, c, indexing="ij")
+with open(folder + "/field.nii", "wb") as f:
+    f.write(h.binaryblock + b"\0" * 4)
+    for k in range(n):
+        z = c[k]
+        s = 3 * np.pi
+        g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
+        v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)
+        f.write(np.clip(v * 16000, -32768, 32767).astype("<i2").tobytes())
+PY
+}
 scene() {  # RESOLUTION
-  if [ "$kind" = nrrd ]; then
+  if [ "$kind" = nifti ]; then
+    [ -f "$work/f$1/field.nii" ] || writeNifti "$1" "$work/f$1"
+    volume="\"file\": \"$work/f$1/field.nii\""
+    iso=-100
+  elif [ "$kind" = nrrd ]; then
     [ -f "$work/f$1/field.nhdr" ] || writeNrrd "$1" "$work/f$1"
     volume="\"file\": \"$work/f$1/field.nhdr\""
     iso=32768
@@ -67,7 +98,9 @@ base=$(peak "$work/base.txt")
 one=$(peak "$work/one.txt")
 same=no
 oiiotool --fail 0 --failpercent 0 "$work/one.exr" "$work/many.exr" --diff > /dev/null 2>&1 && same=yes
-if [ "$kind" = nrrd ]; then
+if [ "$kind" = nifti ]; then
+  echo "volume ${n}^3 int16 scaled to float32, one NIfTI-1 file ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
+elif [ "$kind" = nrrd ]; then
   echo "volume ${n}^3 uint16, a NRRD of $n slice files ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
 else
   echo "volume ${n}^3 float32 ($(( n * n * n * 4 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"

@@ -504,7 +504,7 @@ RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
 
 // This rank's window of volume v. A procedural field is evaluated twice, once for its bricks'
 // ranges (nothing kept) and once for the window; a file whose samples lie in runs of bytes (raw,
-// NRRD, MetaImage, binary VTK, NIfTI: fileBrickRanges) is read twice, for the ranges and for the window: the rank
+// NRRD, MetaImage, binary VTK, NIfTI, DICOM: fileBrickRanges) is read twice, for the ranges and for the window: the rank
 // never holds more than its window (and a compressed file's compressed bytes). Other files are
 // read whole and the window cut from them (docs/distributed.md).
 VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
@@ -521,7 +521,7 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
   if (!desc.array && !desc.field) {
     // Its bricks' ranges first (the files read or inflated in order, a layer at a time), then
     // only the window's samples.
-    if (const std::optional<BrickGrid> ranges = fileBrickRanges(desc.file, desc.layout)) {
+    if (const std::optional<BrickGrid> ranges = fileBrickRanges(desc.file, desc.layout, desc.part)) {
       const RankBox box = rankBox(scene, v, *ranges);
       const SampleWindow window{box.windowFirst(), box.windowExtent(ranges->dims())};
       f = readVolumeFile(desc.file, desc.layout, desc.part, &window);

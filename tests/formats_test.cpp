@@ -294,6 +294,81 @@ TEST(DicomFiles, SeriesProblemsAreNamed) {
   expectVolumeError(test::dataPath("volumes/bucky_32x32x32_uint8.raw"), "\"series\" applies to DICOM only", {"1.2", ""});
 }
 
+// A data-parallel rank's part of a DICOM volume (loadDicom's window, dicomBrickRanges through
+// fileBrickRanges): of a series only the slab's files are decoded (and the first slice's, which
+// places the volume); the window is the whole volume's, samples and placement, and the ranges
+// are the whole grid's. A multi-frame file is cut after decoding.
+TEST(DicomFiles, WindowsDecodeOnlyTheirSlab) {
+  gdcm::Trace::SetWarning(false);
+  const std::string dir = test::scratchDir();
+  const TestSeries series;
+  series.writeAll(dir + "/s");
+  for (int k = 0; k < 3; ++k) series.write(dir + "/s", k, "1.2.3.4", 0, "other");  // a second series beside it
+  const VolumePart part{"1.2.826.0.1.3680043.2.1125.1", ""};
+  auto expectSame = [](const VolumeFile& whole, const VolumeFile& part, const SampleWindow& w) {
+    ASSERT_EQ(part.grid.dims(), whole.grid.dims());
+    ASSERT_EQ(part.grid.windowFirst(), w.first);
+    ASSERT_EQ(part.grid.windowExtent(), w.extent);
+    EXPECT_EQ(part.grid.bytes(), size_t(w.extent.x) * w.extent.y * w.extent.z * 4);
+    size_t differ = 0;
+    for (int z = w.first.z; z < w.first.z + w.extent.z; ++z)
+      for (int y = w.first.y; y < w.first.y + w.extent.y; ++y)
+        for (int x = w.first.x; x < w.first.x + w.extent.x; ++x) differ += part.grid.value(x, y, z) != whole.grid.value(x, y, z);
+    EXPECT_EQ(differ, 0u);
+    EXPECT_EQ(part.grid.origin(), whole.grid.origin());
+    EXPECT_EQ(part.grid.spacing(), whole.grid.spacing());
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) EXPECT_EQ(part.toWorld.m[r][c], whole.toWorld.m[r][c]);
+    EXPECT_EQ(part.notes, whole.notes);
+  };
+  auto expectRanges = [](const Grid& whole, const std::optional<BrickGrid>& streamed) {
+    ASSERT_TRUE(streamed.has_value());
+    const BrickGrid bricks(whole);
+    ASSERT_EQ(streamed->size(), bricks.size());
+    ASSERT_EQ(streamed->dims(), bricks.dims());
+    for (uint32_t b = 0; b < bricks.size(); ++b) {
+      EXPECT_EQ(streamed->brickMin(b), bricks.brickMin(b)) << b;
+      EXPECT_EQ(streamed->brickMax(b), bricks.brickMax(b)) << b;
+    }
+  };
+  const VolumeFile whole = readVolumeFile(dir + "/s", {}, part);
+  expectRanges(whole.grid, fileBrickRanges(dir + "/s", {}, part));
+  const int n = series.count;
+  const SampleWindow low{{0, 0, 0}, {64, 64, 6}}, high{{0, 0, 5}, {64, 64, n - 5}}, inner{{3, 10, 2}, {40, 30, 4}};
+  for (const SampleWindow& w : {low, high, inner}) expectSame(whole, readVolumeFile(dir + "/s", {}, part, &w), w);
+  // A rank's World of the series: a window of the whole.
+  SceneDesc scene = parseSceneText(R"({"volumes": [{"file": ")" + dir + "/s" +
+                                       R"(", "series": "1.2.826.0.1.3680043.2.1125.1", "isosurfaces": [{"value": 0}]}]})",
+                                   "s.json");
+  scene.dataPart = DataPart{0, 2};
+  const World world(scene, IntersectorSpec{});
+  const Grid& held = *world.volumes()[0].grid;
+  EXPECT_TRUE(held.isWindow());
+  EXPECT_LT(held.bytes(), whole.grid.bytes());
+  // Slice 9's pixels cut short: the whole volume, its ranges and a window holding it fail naming
+  // the file; a window below it decodes only its slab and is read.
+  const std::string victim = dir + "/s/" + series.name(9);
+  std::filesystem::resize_file(victim, std::filesystem::file_size(victim) - 3000);
+  expectVolumeError(dir + "/s", series.name(9), part);
+  test::expectRefusal<InputError>([&] { fileBrickRanges(dir + "/s", {}, part); }, dir + "/s/", series.name(9));
+  test::expectRefusal<InputError>([&] { readVolumeFile(dir + "/s", {}, part, &high); }, dir + "/s/", series.name(9));
+  expectSame(whole, readVolumeFile(dir + "/s", {}, part, &low), low);
+  // A window beyond the volume, the other series chosen, no series chosen: named.
+  const SampleWindow beyond{{0, 0, 0}, {64, 64, n + 1}};
+  test::expectRefusal<InputError>([&] { readVolumeFile(dir + "/s", {}, part, &beyond); }, dir + "/s", "not within the volume's 64x64x12");
+  EXPECT_EQ(fileBrickRanges(dir + "/s", {}, VolumePart{"1.2.3.4", ""})->dims(), (Vec3i{64, 64, 3}));
+  test::expectRefusal<InputError>([&] { fileBrickRanges(dir + "/s"); }, dir + "/s", "holds 2 series");
+
+  // A multi-frame file: cut from the decoded whole.
+  const VolumeFile dose = readVolumeFile(kPydicom + "rtdose.dcm");
+  expectRanges(dose.grid, fileBrickRanges(kPydicom + "rtdose.dcm"));
+  const SampleWindow slab{{0, 0, 4}, {10, 10, 6}};
+  expectSame(dose, readVolumeFile(kPydicom + "rtdose.dcm", {}, {}, &slab), slab);
+  // A file on which GDCM aborts: one error, from the ranges' child process too.
+  test::expectRefusal<InputError>([&] { fileBrickRanges(kPydicom + "liver_1frame.dcm"); }, kPydicom + "liver_1frame.dcm",
+                                  "GDCM stopped reading it");
+}
+
 // pydicom's RT dose: 15 frames of 10x10 uint32, scaled by DoseGridScaling 1e-6. Expected
 // values from pydicom: (pixel_array * DoseGridScaling).sum() and [frame 1, row 2, column 1].
 TEST(DicomFiles, MultiFrameRtDoseMatchesPydicom) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <stdexcept>
 
 namespace iso {
 
@@ -42,6 +43,15 @@ void BrickGrid::finishRanges() {
   m_min = *std::min_element(m_lo.begin(), m_lo.end());
   m_max = *std::max_element(m_hi.begin(), m_hi.end());
   if (m_min > m_max) m_min = m_max = 0;  // a window holding no whole brick
+}
+
+BrickGrid BrickGrid::fromRanges(Vec3i dims, const float* lo, const float* hi, size_t count) {
+  BrickGrid g(dims);
+  if (count != g.m_lo.size()) throw std::invalid_argument("BrickGrid::fromRanges: not one range per brick");
+  g.m_lo.assign(lo, lo + count);
+  g.m_hi.assign(hi, hi + count);
+  g.finishRanges();
+  return g;
 }
 
 BrickGrid::BrickGrid(const Grid& grid) : BrickGrid(grid.dims()) {

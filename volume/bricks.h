@@ -45,6 +45,11 @@ class BrickGrid {
     return g;
   }
 
+  // The bricks of a grid of `dims` with the given ranges (brick b's min and max, as brickMin and
+  // brickMax give them): ranges computed elsewhere (a reader's child process). `count` must be
+  // the bricks' number (std::invalid_argument otherwise).
+  static BrickGrid fromRanges(Vec3i dims, const float* lo, const float* hi, size_t count);
+
   Vec3i count() const { return m_count; }
   Vec3i dims() const { return {m_cellDims.x + 1, m_cellDims.y + 1, m_cellDims.z + 1}; }  // the grid's samples
   size_t size() const { return m_lo.size(); }

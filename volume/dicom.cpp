@@ -8,8 +8,10 @@
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTrace.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -170,7 +172,33 @@ VolumeFile loadMultiFrame(const std::string& file) {
   return out;
 }
 
-VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
+// A multi-frame file, or only `window` of it (decoded whole: GDCM decodes a file at once).
+VolumeFile multiFrameWindow(const std::string& file, const SampleWindow* window) {
+  VolumeFile f = loadMultiFrame(file);
+  if (window) {
+    checkWindow(*window, f.grid.dims(), file);
+    f.grid = windowOf(f.grid, window->first, window->extent);
+  }
+  return f;
+}
+
+// A folder's series: its slices ordered along their normal, evenly spaced (checked), and the
+// geometry they share; or, when the series is one file, that file (`multiFrame`).
+struct Series {
+  struct Slice {
+    std::string file;
+    double position[3];
+    double along;
+  };
+  std::vector<Slice> slices;
+  std::string multiFrame;
+  double orientation[6];
+  Vec3d normal;
+  double step = 0;
+  std::string uid, modality;
+};
+
+Series scanSeries(const std::string& folder, const std::string& wanted) {
   gdcm::Directory directory;
   directory.Load(folder, false);
   std::vector<std::string> files = directory.GetFilenames();
@@ -193,28 +221,27 @@ VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
     throw InputError(folder, "", "holds " + std::to_string(series.size()) + " series; choose one with \"series\": " + list());
   if (!wanted.empty() && !series.count(wanted))
     throw InputError(folder, "", "no series '" + wanted + "'; the folder holds " + list());
-  const std::string uid = wanted.empty() ? series.begin()->first : wanted;
-  const std::vector<std::string>& members = series[uid];
-  if (members.size() == 1) return loadMultiFrame(members[0]);
+  Series out;
+  out.uid = wanted.empty() ? series.begin()->first : wanted;
+  const std::vector<std::string>& members = series[out.uid];
+  if (members.size() == 1) {
+    out.multiFrame = members[0];
+    return out;
+  }
 
   // Geometry of every slice: one orientation and size for all, ordered by the position along
   // the slice normal (never by file name or InstanceNumber).
-  struct Slice {
-    std::string file;
-    double position[3];
-    double along;
-  };
-  double orientation[6];
+  double* orientation = out.orientation;
   if (!parseNumbers(scanner.GetValue(members[0].c_str(), kOrientation), 6, orientation))
     throw InputError(members[0], "ImageOrientationPatient", "missing or not 6 numbers");
-  const Vec3d normal = cross3(orientation, orientation + 3);
+  const Vec3d normal = out.normal = cross3(orientation, orientation + 3);
   if (!(length(normal) > 0.99 && length(normal) < 1.01))
     throw InputError(members[0], "ImageOrientationPatient", "row and column directions are not unit and orthogonal");
   const std::string rows = trimmed(scanner.GetValue(members[0].c_str(), kRows));
   const std::string columns = trimmed(scanner.GetValue(members[0].c_str(), kColumns));
-  std::vector<Slice> slices;
+  std::vector<Series::Slice>& slices = out.slices;
   for (const std::string& f : members) {
-    Slice s{f, {}, 0};
+    Series::Slice s{f, {}, 0};
     double o[6];
     if (!parseNumbers(scanner.GetValue(f.c_str(), kPosition), 3, s.position))
       throw InputError(f, "ImagePositionPatient", "missing or not 3 numbers");
@@ -228,7 +255,7 @@ VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
     s.along = s.position[0] * normal.x + s.position[1] * normal.y + s.position[2] * normal.z;
     slices.push_back(s);
   }
-  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
+  std::sort(slices.begin(), slices.end(), [](const Series::Slice& a, const Series::Slice& b) { return a.along < b.along; });
   std::vector<double> gaps;
   for (size_t i = 0; i + 1 < slices.size(); ++i) {
     gaps.push_back(slices[i + 1].along - slices[i].along);
@@ -239,71 +266,168 @@ VolumeFile loadSeries(const std::string& folder, const std::string& wanted) {
   // slice or a series of two interleaved stacks is an error naming where, never a stretched grid.
   std::vector<double> sorted = gaps;
   std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-  const double step = sorted[sorted.size() / 2];
+  out.step = sorted[sorted.size() / 2];
   for (size_t i = 0; i < gaps.size(); ++i)
-    if (std::fabs(gaps[i] - step) > 0.01 * step + 1e-3) {
+    if (std::fabs(gaps[i] - out.step) > 0.01 * out.step + 1e-3) {
       char text[160];
       std::snprintf(text, sizeof text, "uneven slice gaps: %.4g mm between ", gaps[i]);
       char tail[80];
-      std::snprintf(tail, sizeof tail, ", where the others are %.4g mm", step);
+      std::snprintf(tail, sizeof tail, ", where the others are %.4g mm", out.step);
       throw InputError(folder, "", text + slices[i].file + " and " + slices[i + 1].file + tail);
     }
-
-  // Pixels, slice by slice, rescaled (Hounsfield units for CT).
-  std::vector<float> samples;
-  Vec3i size{0, 0, int(slices.size())};
-  double spacing[2] = {1, 1};
-  std::string syntax;
-  for (size_t k = 0; k < slices.size(); ++k) {
-    Decoded d;
-    decode(slices[k].file, d);
-    const unsigned* dims = d.image().GetDimensions();
-    if (d.image().GetNumberOfDimensions() > 2 && dims[2] > 1)
-      throw InputError(slices[k].file, "NumberOfFrames", "a multi-frame file inside a series of slices");
-    if (k == 0) {
-      size.x = int(dims[0]);
-      size.y = int(dims[1]);
-      if (size.x < 2 || size.y < 2) throw InputError(slices[k].file, "Rows/Columns", "each dimension needs at least 2 samples");
-      samples.reserve(size_t(size.x) * size.y * size.z);
-      spacing[0] = d.image().GetSpacing()[0];
-      spacing[1] = d.image().GetSpacing()[1];
-      syntax = gdcm::TransferSyntax::GetTSString(d.image().GetTransferSyntax());
-    } else if (int(dims[0]) != size.x || int(dims[1]) != size.y) {
-      throw InputError(slices[k].file, "Rows/Columns", "differ from the series' first slice");
-    }
-    appendRescaled(d, slices[k].file, samples);
-  }
-  VolumeFile out;
-  out.format = "DICOM";
-  out.grid = Grid(size, std::move(samples));
-  placeDicom(slices[0].position, orientation, spacing[0], spacing[1], normal * step, out, slices[0].file);
-  const std::string modality = trimmed(scanner.GetValue(slices[0].file.c_str(), kModality));
-  out.notes.push_back("series " + uid + ", modality " + (modality.empty() ? "unknown" : modality) + ", " +
-                      std::to_string(slices.size()) + " slices " + std::to_string(step) + " mm apart (" + syntax +
-                      "); values rescaled to float32");
+  out.modality = trimmed(scanner.GetValue(slices[0].file.c_str(), kModality));
   return out;
 }
 
-VolumeFile readHere(const std::string& path, const std::string& series) {
+// What the series' first slice tells of all: the volume's size, pixel spacing, transfer syntax.
+struct SeriesPixels {
+  Vec3i size;
+  double spacing[2] = {1, 1};
+  std::string syntax;
+};
+
+// Slice k of the series decoded and rescaled (Hounsfield units for CT) into `samples`, replacing
+// what they held. Slice 0 must come first: it sets `p`, which every later slice must match.
+void decodeSlice(const Series& series, size_t k, SeriesPixels& p, std::vector<float>& samples) {
+  const std::string& file = series.slices[k].file;
+  Decoded d;
+  decode(file, d);
+  const unsigned* dims = d.image().GetDimensions();
+  if (d.image().GetNumberOfDimensions() > 2 && dims[2] > 1)
+    throw InputError(file, "NumberOfFrames", "a multi-frame file inside a series of slices");
+  if (k == 0) {
+    p.size = {int(dims[0]), int(dims[1]), int(series.slices.size())};
+    if (p.size.x < 2 || p.size.y < 2) throw InputError(file, "Rows/Columns", "each dimension needs at least 2 samples");
+    p.spacing[0] = d.image().GetSpacing()[0];
+    p.spacing[1] = d.image().GetSpacing()[1];
+    p.syntax = gdcm::TransferSyntax::GetTSString(d.image().GetTransferSyntax());
+  } else if (int(dims[0]) != p.size.x || int(dims[1]) != p.size.y) {
+    throw InputError(file, "Rows/Columns", "differ from the series' first slice");
+  }
+  samples.clear();
+  appendRescaled(d, file, samples);
+}
+
+// The series' volume (its samples in `grid`, whole or a window) placed in patient space.
+VolumeFile placeSeries(const Series& series, const SeriesPixels& p, Grid grid) {
+  VolumeFile out;
+  out.format = "DICOM";
+  out.grid = std::move(grid);
+  placeDicom(series.slices[0].position, series.orientation, p.spacing[0], p.spacing[1], series.normal * series.step, out,
+             series.slices[0].file);
+  out.notes.push_back("series " + series.uid + ", modality " + (series.modality.empty() ? "unknown" : series.modality) +
+                      ", " + std::to_string(series.slices.size()) + " slices " + std::to_string(series.step) +
+                      " mm apart (" + p.syntax + "); values rescaled to float32");
+  return out;
+}
+
+// A folder's series, or of it only `window` (only the files of its slab decoded, and the first
+// slice's, whose spacing places the volume).
+VolumeFile loadSeries(const std::string& folder, const std::string& wanted, const SampleWindow* window) {
+  const Series series = scanSeries(folder, wanted);
+  if (!series.multiFrame.empty()) {
+    return multiFrameWindow(series.multiFrame, window);
+  }
+  SeriesPixels p;
+  std::vector<float> slice;
+  decodeSlice(series, 0, p, slice);
+  const size_t layer = size_t(p.size.x) * size_t(p.size.y);
+  if (!window) {
+    std::vector<float> samples;
+    samples.reserve(layer * size_t(p.size.z));
+    for (size_t k = 0; k < series.slices.size(); ++k) {
+      if (k > 0) decodeSlice(series, k, p, slice);
+      samples.insert(samples.end(), slice.begin(), slice.end());
+    }
+    return placeSeries(series, p, Grid(p.size, std::move(samples)));
+  }
+  const SampleWindow& w = *window;
+  checkWindow(w, p.size, folder);
+  auto samples = std::make_shared<std::vector<float>>(size_t(w.extent.x) * size_t(w.extent.y) * size_t(w.extent.z));
+  float* out = samples->data();
+  for (int k = w.first.z; k < w.first.z + w.extent.z; ++k) {
+    if (k > 0) decodeSlice(series, size_t(k), p, slice);
+    for (int y = w.first.y; y < w.first.y + w.extent.y; ++y, out += w.extent.x)
+      std::copy_n(slice.data() + size_t(y) * size_t(p.size.x) + size_t(w.first.x), size_t(w.extent.x), out);
+  }
+  Grid grid(p.size, ScalarType::Float32, std::shared_ptr<const void>(samples, samples->data()), w.first, w.extent);
+  return placeSeries(series, p, std::move(grid));
+}
+
+// The brick ranges of a folder's series (or multi-frame file), its slices decoded one at a time.
+BrickGrid seriesBrickRanges(const std::string& path, const std::string& wanted) {
+  std::error_code ec;
+  if (!fs::is_directory(path, ec)) return BrickGrid(loadMultiFrame(path).grid);
+  const Series series = scanSeries(path, wanted);
+  if (!series.multiFrame.empty()) return BrickGrid(loadMultiFrame(series.multiFrame).grid);
+  SeriesPixels p;
+  std::vector<float> slice;
+  decodeSlice(series, 0, p, slice);
+  return BrickGrid::fromStream(p.size, [&](auto&& layerDone) {
+    for (size_t k = 0; k < series.slices.size(); ++k) {
+      if (k > 0) decodeSlice(series, k, p, slice);
+      layerDone(int(k), slice.data());
+    }
+  });
+}
+
+void muteGdcm() {
   // GDCM reports problems on stderr; isotrace reports them itself, in one line.
   gdcm::Trace::SetWarning(false);
   gdcm::Trace::SetError(false);
   gdcm::Trace::SetDebug(false);
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) return loadSeries(path, series);
-  return loadMultiFrame(path);
 }
 
-}  // namespace
+VolumeFile readHere(const std::string& path, const std::string& series, const SampleWindow* window) {
+  muteGdcm();
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) return loadSeries(path, series, window);
+  return multiFrameWindow(path, window);
+}
 
-VolumeFile loadDicom(const std::string& path, const std::string& series) {
+void checkDicomPath(const std::string& path, const std::string& series) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (!fs::is_directory(path, ec)) checkInputFile(path, "DICOM file", false);
   if (!fs::is_directory(path, ec) && !series.empty())
     throw InputError(path, "", "\"series\" chooses among the series of a folder; this is one file");
+}
+
+}  // namespace
+
+VolumeFile loadDicom(const std::string& path, const std::string& series, const SampleWindow* window) {
+  checkDicomPath(path, series);
   // Debian's GDCM aborts on an assertion for some malformed files: it reads in a child process.
-  return readInChildProcess(path, "GDCM", [&] { return readHere(path, series); });
+  return readInChildProcess(path, "GDCM", [&] { return readHere(path, series, window); });
+}
+
+BrickGrid dicomBrickRanges(const std::string& path, const std::string& series) {
+  checkDicomPath(path, series);
+  // In a child process, as above; the ranges come back as two arrays of floats, the dims in the report.
+  const ChildOutput child = runInChildProcess(path, "GDCM", [&](int fd) {
+    muteGdcm();
+    const BrickGrid b = seriesBrickRanges(path, series);
+    std::vector<float> ranges(2 * b.size());
+    for (uint32_t i = 0; i < b.size(); ++i) ranges[i] = b.brickMin(i), ranges[b.size() + i] = b.brickMax(i);
+    for (size_t done = 0; done < ranges.size() * sizeof(float);) {
+      const ssize_t n = write(fd, reinterpret_cast<const char*>(ranges.data()) + done, ranges.size() * sizeof(float) - done);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) throw InputError(path, "", "cannot hand back the brick ranges");
+      done += size_t(n);
+    }
+    const Vec3i d = b.dims();
+    return std::string(reinterpret_cast<const char*>(&d), sizeof d);
+  });
+  Vec3i dims;
+  if (child.report.size() != sizeof dims) throw InputError(path, "", "GDCM's reader gave back malformed ranges");
+  std::memcpy(&dims, child.report.data(), sizeof dims);
+  const size_t count = child.size / (2 * sizeof(float));
+  try {
+    const float* ranges = static_cast<const float*>(child.bytes.get());
+    return BrickGrid::fromRanges(dims, ranges, ranges + count, count);
+  } catch (const std::invalid_argument&) {
+    throw InputError(path, "", "GDCM's reader gave back malformed ranges");
+  }
 }
 
 }  // namespace iso

@@ -1048,6 +1048,13 @@ std::ifstream openRawFile(const std::string& path, const Vec3i& dims, ScalarType
   return in;
 }
 
+// A DICOM folder, or a file named .dcm or .dicom.
+bool isDicomPath(const std::string& path) {
+  std::error_code ec;
+  const std::string name = lower(fs::path(path).filename().string());
+  return fs::is_directory(path, ec) || endsWith(name, ".dcm") || endsWith(name, ".dicom");
+}
+
 bool isNiftiName(const std::string& name) {
   return endsWith(name, ".nii") || endsWith(name, ".nii.gz") || endsWith(name, ".hdr") || endsWith(name, ".hdr.gz");
 }
@@ -1431,7 +1438,8 @@ const char* volumeExtensions() {
          ".vdb, or a folder of DICOM slices";
 }
 
-std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout) {
+std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout, const VolumePart& part) {
+  if (isDicomPath(path)) return dicomBrickRanges(path, part.series);
   const std::optional<SampleRuns> runs = sampleRunsOf(path, layout);
   if (!runs) return std::nullopt;
   return runsBrickRanges(*runs);
@@ -1455,6 +1463,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
     throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
   if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
+  if (window && (folder || isDicomPath(path))) return loadDicom(path, part.series, window);
   if (window) {
     if (const std::optional<SampleRuns> runs = sampleRunsOf(path, layout)) {
       checkWindow(*window, runs->dims, path);
@@ -1469,10 +1478,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
     VolumeFile f = readVolumeFile(path, layout, part, nullptr);
     if (f.grid.sparse()) throw InputError(path, "", "a sparse (OpenVDB) volume cannot be split into windows yet");
     checkWindow(*window, f.grid.dims(), path);
-    const Vec3d origin = f.grid.origin(), spacing = f.grid.spacing();
-    f.grid = windowOf(f.grid, window->first, window->extent);
-    f.grid.setOrigin(origin);
-    f.grid.setSpacing(spacing);
+    f.grid = windowOf(f.grid, window->first, window->extent);  // (origin and spacing kept)
     return f;
   }
   if (folder) return loadDicom(path, part.series);  // a folder is a DICOM series

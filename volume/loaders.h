@@ -63,7 +63,7 @@ void checkWindow(const SampleWindow& window, const Vec3i& dims, const std::strin
 // inflated) in order, a layer at a time. What a data-parallel rank needs to split the volume
 // before it reads its window. For the files whose window readVolumeFile reads alone (above);
 // nullopt for any other (a pipe, another format or layout).
-std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout = {});
+std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;
@@ -72,8 +72,12 @@ inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}
 const char* volumeExtensions();
 
 // DICOM (volume/dicom.cpp, GDCM): a folder is one series of single-frame slices (`series`
-// chooses when it holds several), a file one multi-frame volume.
-VolumeFile loadDicom(const std::string& path, const std::string& series = "");
+// chooses when it holds several), a file one multi-frame volume. With `window`, only those
+// samples come back: of a series only the slab's files are decoded (and the first slice's, which
+// places the volume); a multi-frame file is decoded whole in the reader's child process.
+VolumeFile loadDicom(const std::string& path, const std::string& series = "", const SampleWindow* window = nullptr);
+// A DICOM volume's brick ranges, its slices decoded one at a time (in a child process).
+BrickGrid dicomBrickRanges(const std::string& path, const std::string& series = "");
 // OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name) over its active
 // bounding box plus one voxel, placed by the grid's transform; sparse (Grid::sparse()), or a
 // dense copy when `dense` (tests compare the two).
