@@ -259,6 +259,60 @@ TEST(DataParallel, NiftiWindowsAreReadAlone) {
   }
 }
 
+// OpenVDB: a rank's part of a sparse grid keeps only the blocks of the bricks that reach into its
+// window (read in OpenVDB's child process, the rest dropped there); its samples are the whole
+// grid's, its bricks wholly held have the whole grid's ranges and no other is active, and the
+// ranges of the file (vdbBrickRanges, through fileBrickRanges) are the whole grid's.
+TEST(DataParallel, OpenVdbWindowsKeepOnlyTheirBricks) {
+  const std::string path = test::dataPath("volumes/smoke.vdb");
+  const VolumeFile whole = readVolumeFile(path);
+  ASSERT_NE(whole.grid.sparse(), nullptr);
+  expectRangesOf(whole.grid, path);
+  const BrickGrid bricks(whole.grid);
+  for (int ranks : {2, 3}) {
+    std::vector<int> activeOn(bricks.size(), 0);
+    for (const RankBox& box : boxesOf(whole.grid, 0.2f, ranks)) {
+      const SampleWindow w{box.windowFirst(), box.windowExtent(whole.grid.dims())};
+      const VolumeFile part = readVolumeFile(path, {}, {}, &w);
+      ASSERT_NE(part.grid.sparse(), nullptr);
+      ASSERT_TRUE(part.grid.windowFirst() == w.first);
+      ASSERT_TRUE(part.grid.windowExtent() == w.extent);
+      EXPECT_LT(part.grid.sparse()->blockCount, whole.grid.sparse()->blockCount);
+      EXPECT_TRUE(part.grid.origin() == whole.grid.origin());
+      EXPECT_TRUE(part.grid.spacing() == whole.grid.spacing());
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 4; ++c) EXPECT_EQ(part.toWorld.m[r][c], whole.toWorld.m[r][c]);
+      size_t differ = 0;
+      for (int z = w.first.z; z < w.first.z + w.extent.z; ++z)
+        for (int y = w.first.y; y < w.first.y + w.extent.y; ++y)
+          for (int x = w.first.x; x < w.first.x + w.extent.x; ++x)
+            differ += part.grid.value(x, y, z) != whole.grid.value(x, y, z);
+      EXPECT_EQ(differ, 0u);
+      const BrickGrid held(part.grid);
+      for (uint32_t b = 0; b < bricks.size(); ++b) {
+        if (part.grid.holdsCells(bricks.cellBegin(b), bricks.cellEnd(b))) {
+          EXPECT_EQ(held.brickMin(b), bricks.brickMin(b));
+          EXPECT_EQ(held.brickMax(b), bricks.brickMax(b));
+        } else {
+          EXPECT_GT(held.brickMin(b), held.brickMax(b)) << "brick " << b << " is not held but has a range";
+        }
+      }
+      for (uint32_t b : held.activeBricks(0.2f)) ++activeOn[b];
+    }
+    // Every active brick of the whole grid is active on exactly one rank.
+    const std::vector<uint32_t> active = bricks.activeBricks(0.2f);
+    ASSERT_FALSE(active.empty());
+    for (uint32_t b : active) EXPECT_EQ(activeOn[b], 1) << "brick " << b;
+    EXPECT_EQ(std::count(activeOn.begin(), activeOn.end(), 0), long(bricks.size() - active.size()));
+  }
+  // A window beyond the grid; a file that is not one: one error each.
+  const SampleWindow beyond{{0, 0, 0}, {whole.grid.dims().x + 1, 2, 2}};
+  EXPECT_THROW(readVolumeFile(path, {}, {}, &beyond), InputError);
+  const std::string bad = test::scratchDir() + "/bad.vdb";
+  test::writeText(bad, "not a vdb file at all");
+  EXPECT_THROW(fileBrickRanges(bad), InputError);
+}
+
 // A rank opens only the files that hold its window's rows: a NRRD's slice files outside it may
 // even be missing. A file the window needs that is short or corrupt is one error naming it.
 TEST(DataParallel, ARankReadsOnlyTheSliceFilesOfItsWindow) {

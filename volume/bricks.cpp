@@ -62,6 +62,7 @@ BrickGrid::BrickGrid(const Grid& grid) : BrickGrid(grid.dims()) {
   if (const SparseSamples* sparse = grid.sparse()) {
     // The bricks are the sparse grid's own: a block's range, or its one value.
     tbb::parallel_for(size_t(0), n, [&](size_t b) {
+      if (!grid.holdsCells(cellBegin(uint32_t(b)), cellEnd(uint32_t(b)))) return;  // (a window's: not held, never active)
       const int32_t slot = sparse->slot[b];
       if (slot < 0) {
         m_lo[b] = m_hi[b] = sparse->uniformValue(slot);

@@ -8,10 +8,8 @@
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTrace.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -403,31 +401,10 @@ VolumeFile loadDicom(const std::string& path, const std::string& series, const S
 
 BrickGrid dicomBrickRanges(const std::string& path, const std::string& series) {
   checkDicomPath(path, series);
-  // In a child process, as above; the ranges come back as two arrays of floats, the dims in the report.
-  const ChildOutput child = runInChildProcess(path, "GDCM", [&](int fd) {
+  return rangesInChildProcess(path, "GDCM", [&] {
     muteGdcm();
-    const BrickGrid b = seriesBrickRanges(path, series);
-    std::vector<float> ranges(2 * b.size());
-    for (uint32_t i = 0; i < b.size(); ++i) ranges[i] = b.brickMin(i), ranges[b.size() + i] = b.brickMax(i);
-    for (size_t done = 0; done < ranges.size() * sizeof(float);) {
-      const ssize_t n = write(fd, reinterpret_cast<const char*>(ranges.data()) + done, ranges.size() * sizeof(float) - done);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) throw InputError(path, "", "cannot hand back the brick ranges");
-      done += size_t(n);
-    }
-    const Vec3i d = b.dims();
-    return std::string(reinterpret_cast<const char*>(&d), sizeof d);
+    return seriesBrickRanges(path, series);
   });
-  Vec3i dims;
-  if (child.report.size() != sizeof dims) throw InputError(path, "", "GDCM's reader gave back malformed ranges");
-  std::memcpy(&dims, child.report.data(), sizeof dims);
-  const size_t count = child.size / (2 * sizeof(float));
-  try {
-    const float* ranges = static_cast<const float*>(child.bytes.get());
-    return BrickGrid::fromRanges(dims, ranges, ranges + count, count);
-  } catch (const std::invalid_argument&) {
-    throw InputError(path, "", "GDCM's reader gave back malformed ranges");
-  }
 }
 
 }  // namespace iso

@@ -61,6 +61,10 @@ Grid::Grid(Vec3i dims, ScalarType type, std::shared_ptr<const void> samples, Vec
 Grid::Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin, Vec3d spacing)
     : m_dims(dims), m_extent(dims), m_origin(origin), m_spacing(spacing), m_type(ScalarType::Float32), m_sparse(std::move(sparse)) {}
 
+Grid::Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3i first, Vec3i extent, Vec3d origin, Vec3d spacing)
+    : m_dims(dims), m_first(first), m_extent(extent), m_origin(origin), m_spacing(spacing), m_type(ScalarType::Float32),
+      m_sparse(std::move(sparse)) {}
+
 void Grid::cellCorners(int x, int y, int z, float out[8]) const {
   if (m_sparse) {
     for (int c = 0; c < 8; ++c) out[c] = sparseValue(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2 & 1));

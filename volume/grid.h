@@ -57,6 +57,9 @@ class Grid {
        Vec3d spacing = {1, 1, 1});
   // A sparse float32 grid; `dims - 1` must be 8 times `sparse.bricks`.
   Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3d origin = {0, 0, 0}, Vec3d spacing = {1, 1, 1});
+  // A window of a sparse grid (as the dense one below): `sparse` has every brick's slot, but only
+  // the bricks whose blocks reach into [first, first + extent) hold their samples.
+  Grid(Vec3i dims, std::shared_ptr<const SparseSamples> sparse, Vec3i first, Vec3i extent, Vec3d origin, Vec3d spacing);
   // A window of a dense grid (a rank's part of a volume split for a data-parallel render): the
   // grid is the whole volume — dims(), origin() and every coordinate are the whole volume's, so
   // a ray computes the same bits in any window — but `samples` holds only the samples

@@ -197,7 +197,7 @@ VolumeFile readInChildProcess(const std::string& path, const char* library, cons
     s->blockCount = h.blockCount;
     s->uniformCount = h.uniformCount;
     s->owner = child.bytes;
-    v.grid = Grid(dims, std::move(s), origin, spacing);
+    v.grid = extent == dims ? Grid(dims, std::move(s), origin, spacing) : Grid(dims, std::move(s), first, extent, origin, spacing);
   } else if (extent == dims) {
     v.grid = Grid(dims, type, child.bytes, origin, spacing);
   } else {
@@ -208,6 +208,29 @@ VolumeFile readInChildProcess(const std::string& path, const char* library, cons
   std::getline(lines, v.format);
   for (std::string line; std::getline(lines, line);) v.notes.push_back(line);
   return v;
+}
+
+BrickGrid rangesInChildProcess(const std::string& path, const char* library, const std::function<BrickGrid()>& ranges) {
+  const ChildOutput child = runInChildProcess(path, library, [&](int fd) {
+    const BrickGrid b = ranges();
+    std::vector<float> lohi(2 * b.size());
+    for (uint32_t i = 0; i < b.size(); ++i) lohi[i] = b.brickMin(i), lohi[b.size() + i] = b.brickMax(i);
+    off_t at = 0;
+    if (!writeAll(fd, lohi.data(), lohi.size() * sizeof(float), &at)) _exit(3);
+    const Vec3i d = b.dims();
+    return std::string(reinterpret_cast<const char*>(&d), sizeof d);
+  });
+  const std::string malformed = std::string(library) + "'s reader gave back malformed brick ranges";
+  Vec3i dims;
+  if (child.report.size() != sizeof dims || !child.bytes) throw InputError(path, "", malformed);
+  std::memcpy(&dims, child.report.data(), sizeof dims);
+  const size_t count = child.size / (2 * sizeof(float));
+  try {
+    const float* lohi = static_cast<const float*>(child.bytes.get());
+    return BrickGrid::fromRanges(dims, lohi, lohi + count, count);
+  } catch (const std::invalid_argument&) {
+    throw InputError(path, "", malformed);
+  }
 }
 
 }  // namespace iso

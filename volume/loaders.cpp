@@ -1440,6 +1440,7 @@ const char* volumeExtensions() {
 
 std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout, const VolumePart& part) {
   if (isDicomPath(path)) return dicomBrickRanges(path, part.series);
+  if (endsWith(lower(fs::path(path).filename().string()), ".vdb")) return vdbBrickRanges(path, part.grid);
   const std::optional<SampleRuns> runs = sampleRunsOf(path, layout);
   if (!runs) return std::nullopt;
   return runsBrickRanges(*runs);
@@ -1464,6 +1465,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
     throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
   if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
   if (window && (folder || isDicomPath(path))) return loadDicom(path, part.series, window);
+  if (window && endsWith(name, ".vdb")) return loadVdb(path, part.grid, false, window);
   if (window) {
     if (const std::optional<SampleRuns> runs = sampleRunsOf(path, layout)) {
       checkWindow(*window, runs->dims, path);
@@ -1476,7 +1478,6 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
     }
     // Data not in runs (other formats, ASCII, a pipe...): read whole, keep the window.
     VolumeFile f = readVolumeFile(path, layout, part, nullptr);
-    if (f.grid.sparse()) throw InputError(path, "", "a sparse (OpenVDB) volume cannot be split into windows yet");
     checkWindow(*window, f.grid.dims(), path);
     f.grid = windowOf(f.grid, window->first, window->extent);  // (origin and spacing kept)
     return f;

@@ -80,8 +80,12 @@ VolumeFile loadDicom(const std::string& path, const std::string& series = "", co
 BrickGrid dicomBrickRanges(const std::string& path, const std::string& series = "");
 // OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name) over its active
 // bounding box plus one voxel, placed by the grid's transform; sparse (Grid::sparse()), or a
-// dense copy when `dense` (tests compare the two).
-VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool dense = false);
+// dense copy when `dense` (tests compare the two). With `window`, only the bricks whose blocks
+// reach into it keep their samples (the file is read whole in the reader's child process).
+VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool dense = false,
+                   const SampleWindow* window = nullptr);
+// The sparse grid's brick ranges (in a child process).
+BrickGrid vdbBrickRanges(const std::string& path, const std::string& grid = "");
 
 // Splits an index-to-world affine (3x4: voxel (i, j, k, 1) -> world) into the grid's spacing
 // (the columns' lengths), its origin (when the axes are the world's) and what is left as
@@ -102,6 +106,8 @@ struct ChildOutput {
   size_t size = 0;
 };
 ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int fd)>& work);
+// A volume's brick ranges computed in a child process (`ranges` runs there), for such a library.
+BrickGrid rangesInChildProcess(const std::string& path, const char* library, const std::function<BrickGrid()>& ranges);
 
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
 std::string describeAffine(const double a[3][4]);

@@ -185,18 +185,79 @@ VolumeFile toSparse(const GridT& grid, const std::string& path) {
   return out;
 }
 
+// The window of a sparse grid: every brick's slot, but only the blocks (and values) of the bricks
+// whose 9^3 samples reach into the window; the others read as 0 (nothing reads them: BrickGrid
+// leaves the bricks a window does not wholly hold inactive).
+Grid sparseWindow(const Grid& grid, const SampleWindow& w) {
+  const SparseSamples& s = *grid.sparse();
+  struct Storage {
+    std::vector<int32_t> slot;
+    std::vector<float> blocks, uniform{0.f};
+  };
+  auto storage = std::make_shared<Storage>();
+  storage->slot.assign(s.brickCount(), -1);  // uniform[0]: 0
+  auto reaches = [&](int b, int a) { return 8 * b <= w.first[a] + w.extent[a] - 1 && 8 * b + 8 >= w.first[a]; };
+  size_t blocks = 0;
+  for (int pass = 0; pass < 2; ++pass) {  // count, then copy: the blocks allocated once
+    if (pass == 1) storage->blocks.reserve(blocks * SparseSamples::kBlockSize);
+    for (int bz = 0; bz < s.bricks.z; ++bz)
+      for (int by = 0; by < s.bricks.y; ++by)
+        for (int bx = 0; bx < s.bricks.x; ++bx) {
+          if (!reaches(bx, 0) || !reaches(by, 1) || !reaches(bz, 2)) continue;
+          const int32_t slot = s.slotOf(bx, by, bz);
+          if (pass == 0) {
+            blocks += slot >= 0;
+            continue;
+          }
+          int32_t& kept = storage->slot[(size_t(bz) * s.bricks.y + size_t(by)) * s.bricks.x + size_t(bx)];
+          if (slot >= 0) {
+            kept = int32_t(storage->blocks.size() / SparseSamples::kBlockSize);
+            storage->blocks.insert(storage->blocks.end(), s.block(slot), s.block(slot) + SparseSamples::kBlockSize);
+          } else {
+            kept = -1 - int32_t(storage->uniform.size());
+            storage->uniform.push_back(s.uniformValue(slot));
+          }
+        }
+  }
+  auto sparse = std::make_shared<SparseSamples>();
+  sparse->bricks = s.bricks;
+  sparse->slot = storage->slot.data();
+  sparse->blocks = storage->blocks.data();
+  sparse->uniform = storage->uniform.data();
+  sparse->blockCount = storage->blocks.size() / SparseSamples::kBlockSize;
+  sparse->uniformCount = storage->uniform.size();
+  sparse->owner = storage;
+  return Grid(grid.dims(), std::move(sparse), w.first, w.extent, grid.origin(), grid.spacing());
+}
+
 VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense);
 
-}  // namespace
-
-VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool dense) {
+void checkVdbPath(const std::string& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path, "", "file not found");
   if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not a file");
   checkInputFile(path, "file", false);
+}
+
+}  // namespace
+
+VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool dense, const SampleWindow* window) {
+  checkVdbPath(path);
   // OpenVDB trusts the sizes in its streams (the fuzzer makes it ask for 2^56 bytes): it reads
   // in a child process.
-  return readInChildProcess(path, "OpenVDB", [&] { return readVdb(path, gridName, dense); });
+  return readInChildProcess(path, "OpenVDB", [&] {
+    VolumeFile f = readVdb(path, gridName, dense);
+    if (window) {
+      checkWindow(*window, f.grid.dims(), path);
+      f.grid = dense ? windowOf(f.grid, window->first, window->extent) : sparseWindow(f.grid, *window);
+    }
+    return f;
+  });
+}
+
+BrickGrid vdbBrickRanges(const std::string& path, const std::string& gridName) {
+  checkVdbPath(path);
+  return rangesInChildProcess(path, "OpenVDB", [&] { return BrickGrid(readVdb(path, gridName, false).grid); });
 }
 
 namespace {
