@@ -163,8 +163,8 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
 // Data-parallel (--data-parallel): each rank holds only its box of each volume and the ranks
 // answer each other's rays; the image is the single process's, bit for bit, for any number of
 // ranks and threads. Scenes where paths cross the rank seams many times: a CT with a glass skin
-// around bone (two iso values, path tracing), a field whose seams run through the surface, and
-// glTF meshes with two volumes.
+// around bone (two iso values, path tracing), a field whose seams run through the surface,
+// glTF meshes with two volumes, and a sparse OpenVDB grid beside an oblique NIfTI volume.
 TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
   const std::string dir = test::scratchDir();
   const std::string data = test::dataPath("");
@@ -185,7 +185,13 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
         "volumes": [{"file": ")" + data + R"(volumes/neghip_64x64x64_uint8.raw", "spacing": [5, 5, 5], "transform": {"translate": [450, 0, -160]},
                      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100, "material": "red"}]},
                     {"file": ")" + data + R"(volumes/headsq/quarter.nhdr", "transform": {"translate": [-300, 0, -100]},
-                     "isosurfaces": [{"value": 1150, "material": "red"}]}], )" + materials + "}"}};
+                     "isosurfaces": [{"value": 1150, "material": "red"}]}], )" + materials + "}"},
+      // Formats split by their own readers: a sparse OpenVDB grid, an oblique NIfTI (placed by an instance).
+      {"formats", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 4, "max_depth": 4},
+        "volumes": [{"file": ")" + data + R"(volumes/smoke.vdb", "transform": {"scale": 20, "translate": [300, 0, 0]},
+                     "isosurfaces": [{"value": 0.2, "material": "glass"}]},
+                    {"file": ")" + data + R"(volumes/example4d.nii.gz", "isosurfaces": [{"value": 300, "material": "red"}]}], )" +
+                      materials + "}"}};
   for (const auto& [name, text] : scenes) {
     SCOPED_TRACE(name);
     test::writeText(dir + "/" + name + ".json", text);
