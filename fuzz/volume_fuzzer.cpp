@@ -1,5 +1,6 @@
-// libFuzzer target: the volume readers. The first byte picks the container (and, for raw,
-// the layout); the rest is the file. Bad input must be an InputError.
+// libFuzzer target: the volume readers, whole and as a data-parallel rank reads them (ranges,
+// then a window). The first byte picks the container (and, for raw, the layout, and the
+// window's place); the rest is the file. Bad input must be an InputError.
 #include <cstdint>
 #include <string>
 
@@ -25,6 +26,17 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string path = iso::fuzz::scratchFile(name, data + 1, size - 1);
   try {
     iso::loadVolumeFile(path, layout);
+  } catch (const iso::InputError&) {
+  }
+  // A data-parallel rank's reads: the brick ranges without the samples, then a window (its
+  // place from the first byte) read without the rest.
+  try {
+    iso::fileBrickRanges(path, layout);
+  } catch (const iso::InputError&) {
+  }
+  const iso::SampleWindow window{{data[0] & 1, data[0] >> 1 & 1, data[0] >> 2 & 3}, {2, 2, 2}};
+  try {
+    iso::readVolumeFile(path, layout, {}, &window);
   } catch (const iso::InputError&) {
   }
   return 0;
