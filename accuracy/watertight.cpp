@@ -66,6 +66,11 @@ class SurfaceChecker {
 
   // WatertightOptions::ranks: the parts' Worlds answer instead of the whole one.
   void setParts(std::vector<const World*> parts) { m_parts = std::move(parts); }
+  // WatertightOptions::exchange: this rank's part answers, combined with the other ranks'.
+  void setRankPart(const World* part, const RankExchange* exchange) {
+    m_parts = {part};
+    m_exchange = exchange;
+  }
 
   Vec3d toGrid(const Vec3d& world) const {
     return (m_toGrid.point(world) - m_grid.origin()) / m_grid.spacing();
@@ -284,6 +289,12 @@ class SurfaceChecker {
   // World or of its parts.
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
     if (m_parts.empty()) return intersectIn(m_world, ray, hit, stats);
+    if (m_exchange) {
+      Hit h;
+      const bool found = m_exchange->closest(intersectIn(*m_parts[0], ray, h, stats), h);
+      if (found) hit = h;
+      return found;
+    }
     bool found = false;
     for (const World* part : m_parts) {
       Hit h;
@@ -296,6 +307,7 @@ class SurfaceChecker {
   }
   bool occluded(const Ray& ray, TraversalStats& stats) const {
     if (m_parts.empty()) return occludedIn(m_world, ray, stats);
+    if (m_exchange) return m_exchange->any(occludedIn(*m_parts[0], ray, stats));
     for (const World* part : m_parts)
       if (occludedIn(*part, ray, stats)) return true;
     return false;
@@ -331,6 +343,7 @@ class SurfaceChecker {
 
   const World& m_world;
   std::vector<const World*> m_parts;
+  const RankExchange* m_exchange = nullptr;
   RayFlow m_flow;
   const Grid& m_grid;
   Transform m_toWorld, m_toGrid;
@@ -347,9 +360,9 @@ struct AloneSurface {
   VolumeDesc desc;
   std::unique_ptr<World> world;
   std::unique_ptr<SurfaceChecker> checker;
-  std::vector<std::unique_ptr<World>> parts;  // WatertightOptions::ranks
+  std::vector<std::unique_ptr<World>> parts;  // WatertightOptions::ranks, or this rank's (exchange)
   AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset,
-               RayFlow flow, int ranks) {
+               RayFlow flow, int ranks, const RankExchange* exchange = nullptr) {
     SceneDesc alone;
     alone.path = scene.path;
     desc = scene.volumes[v];
@@ -373,6 +386,11 @@ struct AloneSurface {
       }
       checker->setParts(std::move(views));
     }
+    if (exchange) {
+      alone.dataPart = DataPart{exchange->rank, exchange->ranks};
+      parts.push_back(std::make_unique<World>(alone, intersector));
+      checker->setRankPart(parts.back().get(), exchange);
+    }
   }
 };
 
@@ -384,10 +402,27 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
   tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
   for (size_t v = 0; v < scene.volumes.size(); ++v)
     for (size_t k = 0; k < scene.volumes[v].isosurfaces.size(); ++k) {
-      const AloneSurface alone(scene, v, k, intersector, options.offset, options.rayFlow, options.ranks);
+      std::unique_ptr<AloneSurface> made;
+      std::string error;
+      try {
+        made = std::make_unique<AloneSurface>(scene, v, k, intersector, options.offset, options.rayFlow, options.ranks,
+                                              options.exchange);
+      } catch (const InputError& e) {
+        if (!options.exchange) throw;
+        error = e.what();
+      } catch (const std::bad_alloc&) {
+        if (!options.exchange) throw;
+        error = "out of memory";
+      }
+      // Under mpirun no rank goes on to the collectives when one failed to load its part.
+      if (options.exchange) error = options.exchange->firstError(error);
+      if (!error.empty()) throw InputError(error);
+      const AloneSurface& alone = *made;
       tbb::enumerable_thread_specific<WatertightCounts> counts;
       tbb::enumerable_thread_specific<std::vector<FailedRay>> failures;
-      arena.execute([&] {
+      // The ranks of a job make their collectives in the same order: one ray after another, here.
+      tbb::task_arena one(1);
+      (options.exchange ? one : arena).execute([&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, options.rays, 256), [&](const tbb::blocked_range<int>& r) {
           WatertightCounts& local = counts.local();
           std::vector<FailedRay>* kept = options.keepFailures ? &failures.local() : nullptr;

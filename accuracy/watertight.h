@@ -18,6 +18,7 @@
 // - shadow mismatch: the occlusion query between two random points disagrees with the
 //   crossings traced between them (any crossing, or different classes, means occluded).
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -64,6 +65,23 @@ struct WatertightReport {
   std::vector<FailedRay> failures;  // when WatertightOptions::keepFailures, in ray order
 };
 
+struct Hit;
+
+// Under mpirun (`isotrace watertight --data-parallel`): this process is rank `rank` of a
+// data-parallel job; its World holds only its part of each volume (SceneDesc::dataPart, as in
+// `render --data-parallel`), and every query's answer is combined with the other ranks' by
+// collectives that every rank makes in the same order (the rays run one at a time). The
+// reference and the classes stay the whole volume's, on every rank.
+struct RankExchange {
+  int rank = 0, ranks = 1;
+  // The closest of the ranks' hits (of equal ones the lowest rank's) into `hit`; whether any found one.
+  std::function<bool(bool found, Hit& hit)> closest;
+  // Whether any rank's answer is true (a shadow segment blocked on some rank).
+  std::function<bool(bool blocked)> any;
+  // The lowest rank's error ("" if none), on every rank: a failure on one rank ends all.
+  std::function<std::string(const std::string& mine)> firstError;
+};
+
 struct WatertightOptions {
   int rays = 100000;
   uint64_t seed = 1;
@@ -79,6 +97,7 @@ struct WatertightOptions {
   // ones the lowest part's) or "blocked" if any part is: the checks across rank seams, in one
   // process. The reference and the classes stay the whole volume's.
   int ranks = 1;
+  const RankExchange* exchange = nullptr;  // under mpirun: the parts are other processes' (above)
 };
 constexpr size_t kMaxKeptFailures = 100000;
 

@@ -7,6 +7,7 @@
 
 #include "accuracy/watertight.h"
 #include "renderer/commands.h"
+#include "renderer/distributed.h"
 #include "volume/input_error.h"
 
 namespace iso {
@@ -42,7 +43,8 @@ std::string listOf(const std::vector<double>& ts) {
 int replay(const CheckFlags& flags) {
   for (const auto& [given, name] : {std::pair{!flags.intersector.empty(), "--intersector"}, {!flags.offset.empty(), "--offset"},
                                     {!flags.dump.empty(), "--dump"}, {!flags.json.empty(), "--json"},
-                                    {!flags.rayFlow.empty(), "--ray-flow"}, {flags.ranks != 1, "--ranks"}})
+                                    {!flags.rayFlow.empty(), "--ray-flow"}, {flags.ranks != 1, "--ranks"},
+                                    {flags.dataParallel, "--data-parallel"}})
     if (given) throw InputError(name, "", "not with --replay: the failure file gives the intersector, ray flow, offset and ranks");
   const FailureFile file = readFailures(flags.replay);
   const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
@@ -73,35 +75,71 @@ int replay(const CheckFlags& flags) {
   return failing == 0 ? 0 : 1;
 }
 
+int check(const CheckFlags& flags, const MpiJob& job);
+
 int watertight(const CheckFlags& flags) {
   if (!flags.replay.empty()) return replay(flags);
-  SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
-  IntersectorSpec spec = scene.settings.intersector;
-  if (!flags.intersector.empty()) {
-    std::string error;
-    if (!parseIntersector(flags.intersector, spec, error)) throw InputError("--intersector", "", error);
+  MpiJob job;  // under mpirun with --data-parallel: one rank of the check
+  if (flags.dataParallel) {
+    if (!job.distributed())
+      throw InputError("--data-parallel", "", "runs under mpirun with 2 or more ranks (in one process the same split: --ranks N)");
+    if (flags.ranks != 1) throw InputError("--data-parallel", "", "not with --ranks (the ranks are mpirun's)");
   }
-  if (flags.rays < 1) throw InputError("--rays", "", "must be at least 1");
-  if (flags.seed < 0) throw InputError("--seed", "", "must be at least 0");
-  if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume to check");
+  if (!job.distributed() || !flags.dataParallel) return check(flags, job);
+  // Every rank loads for itself and checks the same rays; a failure on any rank is one line from
+  // rank 0 (naming the rank), and every rank ends with status 2.
+  try {
+    return check(flags, job);
+  } catch (const InputError& e) {
+    if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", e.what());
+    return 2;
+  }
+}
+
+int check(const CheckFlags& flags, const MpiJob& job) {
+  const bool ranks = job.distributed() && flags.dataParallel;
+  SceneDesc scene;
+  IntersectorSpec spec;
   WatertightOptions options;
-  options.rays = flags.rays;
-  options.seed = uint64_t(flags.seed);
-  options.offset = parseOffset(flags.offset);
-  options.threads = flags.threads;
-  options.rayFlow = scene.settings.rayFlow;
-  if (!flags.rayFlow.empty() && !parseRayFlow(flags.rayFlow, options.rayFlow))
-    throw InputError("--ray-flow", "", "unknown ray flow '" + flags.rayFlow + "' (known: wavefront, scalar)");
-  options.ranks = flags.ranks;
-  options.keepFailures = !flags.dump.empty();
-  if (!flags.dump.empty()) checkWritable(flags.dump);
+  std::string failure;
+  try {
+    scene = parseSceneFile(flags.scene, flags.overrides);
+    spec = scene.settings.intersector;
+    if (!flags.intersector.empty()) {
+      std::string error;
+      if (!parseIntersector(flags.intersector, spec, error)) throw InputError("--intersector", "", error);
+    }
+    if (flags.rays < 1) throw InputError("--rays", "", "must be at least 1");
+    if (flags.seed < 0) throw InputError("--seed", "", "must be at least 0");
+    if (scene.volumes.empty()) throw InputError(flags.scene, "/volumes", "the scene has no volume to check");
+    options.rays = flags.rays;
+    options.seed = uint64_t(flags.seed);
+    options.offset = parseOffset(flags.offset);
+    options.threads = flags.threads;
+    options.rayFlow = scene.settings.rayFlow;
+    if (!flags.rayFlow.empty() && !parseRayFlow(flags.rayFlow, options.rayFlow))
+      throw InputError("--ray-flow", "", "unknown ray flow '" + flags.rayFlow + "' (known: wavefront, scalar)");
+    options.ranks = flags.ranks;
+    options.keepFailures = !flags.dump.empty();
+    if (!flags.dump.empty() && job.rank() == 0) checkWritable(flags.dump);
+  } catch (const InputError& e) {
+    if (!ranks) throw;
+    failure = e.what();
+  }
+  // Under mpirun the ranks agree on the first failure before any of them checks a ray.
+  if (ranks && !(failure = job.firstError(failure)).empty()) throw InputError(failure);
+  const RankExchange exchange = ranks ? job.rankExchange() : RankExchange{};
+  if (ranks) options.exchange = &exchange;
   const auto start = std::chrono::steady_clock::now();
   const std::vector<WatertightReport> reports = checkWatertight(scene, spec, options);
+  if (job.rank() != 0 && ranks) return 0;  // every rank has the same counts: rank 0 reports them
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("watertight %s: intersector %s, %s flow, %d rays per test and iso-surface, seed %lld, offset (%g, %g, %g)%s\n",
               flags.scene.c_str(), intersectorName(spec).c_str(), rayFlowName(options.rayFlow), flags.rays, flags.seed, options.offset.x,
               options.offset.y, options.offset.z,
-              options.ranks > 1 ? (", each volume split over " + std::to_string(options.ranks) + " ranks").c_str() : "");
+              options.ranks > 1 ? (", each volume split over " + std::to_string(options.ranks) + " ranks").c_str()
+              : ranks           ? (", each volume split over " + std::to_string(job.size()) + " MPI ranks").c_str()
+                                : "");
   std::printf("%-7s %-10s %9s %10s %10s %14s %10s %15s %18s\n", "volume", "iso", "rays", "crossings", "reference",
               "parity_errors", "self_hits", "inside_escapes", "shadow_mismatches");
   WatertightCounts total;
@@ -142,7 +180,7 @@ int watertight(const CheckFlags& flags) {
     file.rayFlow = options.rayFlow;
     file.seed = uint64_t(flags.seed);
     file.offset = options.offset;
-    file.ranks = options.ranks;
+    file.ranks = ranks ? job.size() : options.ranks;  // a replay splits the volume the same way, in one process
     for (const WatertightReport& r : reports) file.rays.insert(file.rays.end(), r.failures.begin(), r.failures.end());
     writeFailures(flags.dump, file);
     std::printf("%zu failing rays written to %s (replay: isotrace watertight %s --replay %s)\n", file.rays.size(),
@@ -170,6 +208,9 @@ Command addWatertightCommand(CLI::App& app) {
                   "a World of its own in this process, and check the closest of their hits: the seams between ranks "
                   "(default 1, at most 64)")
       ->check(CLI::Range(1, 64));
+  cmd->add_flag("--data-parallel", f.dataParallel,
+               "under mpirun: each rank holds only its part of each volume (as render --data-parallel) and the "
+               "ranks' answers are combined for every query (one ray at a time)");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   cmd->add_option("--json", f.json, "write the counts as JSON");
   cmd->add_option("--dump", f.dump, "write every failing ray (exact, in hexadecimal) to FILE, to replay alone");

@@ -258,6 +258,36 @@ std::string MpiJob::firstError(const std::string& mine) const {
   return first == 0 ? message : "rank " + std::to_string(first) + " of " + std::to_string(m_size) + ": " + message;
 }
 
+RankExchange MpiJob::rankExchange() const {
+  static_assert(std::is_trivially_copyable_v<Hit>, "hits go between ranks as bytes");
+  RankExchange x;
+  x.rank = m_rank;
+  x.ranks = m_size;
+  x.closest = [size = m_size](bool found, Hit& hit) {
+    struct Answer {
+      int found;
+      Hit hit;
+    };
+    Answer mine{found ? 1 : 0, hit};
+    std::vector<Answer> all(static_cast<size_t>(size));
+    MPI_Allgather(&mine, int(sizeof mine), MPI_BYTE, all.data(), int(sizeof mine), MPI_BYTE, MPI_COMM_WORLD);
+    bool any = false;
+    for (const Answer& a : all)  // the closest; of equal ones the lowest rank's (as one process's parts)
+      if (a.found && (!any || a.hit.t < hit.t)) {
+        hit = a.hit;
+        any = true;
+      }
+    return any;
+  };
+  x.any = [](bool blocked) {
+    int mine = blocked ? 1 : 0, some = 0;
+    MPI_Allreduce(&mine, &some, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
+    return some != 0;
+  };
+  x.firstError = [this](const std::string& mine) { return firstError(mine); };
+  return x;
+}
+
 int MpiJob::sum(int v) const {
   if (!distributed()) return v;
   int total = 0;

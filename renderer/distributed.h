@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "accuracy/watertight.h"
 #include "renderer/render.h"
 
 namespace iso {
@@ -35,6 +36,8 @@ class MpiJob {
   std::string firstError(const std::string& mine) const;
   // Collective: the sum of `v` over all ranks, on every rank.
   int sum(int v) const;
+  // The collectives `isotrace watertight --data-parallel` combines its ranks' answers with.
+  RankExchange rankExchange() const;
   // Collective: the union of every rank's box [lower, upper] (an empty one: lower > upper), on
   // every rank.
   void unionOfBounds(Vec3d& lower, Vec3d& upper) const;

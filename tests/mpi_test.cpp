@@ -283,6 +283,46 @@ TEST(Mpi, DataParallelRefusesWhatItCannotDoYet) {
   EXPECT_FALSE(fs::exists(image));
 }
 
+// `isotrace watertight --data-parallel` under mpirun: each rank holds only its part of the volume
+// and every query is the closest of the ranks' answers, exchanged between the processes. The
+// counts are those of the same split in one process (`--ranks N`, tests/data_parallel_test.cpp),
+// with 0 errors of every kind, at the origin and at 1e5, on 2 and 3 ranks. Bad input on one rank
+// is one line from rank 0 naming it; --data-parallel without mpirun is refused.
+TEST(Mpi, WatertightAcrossRanksUnderMpirun) {
+  const std::string dir = test::scratchDir();
+  const std::string volume = test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw");
+  test::writeText(dir + "/h.json", R"({"volumes": [{"file": ")" + volume + R"(", "isosurfaces": [{"value": 20}, {"value": 10}]}]})");
+  for (const std::string offset : {"0,0,0", "1e5,1e5,1e5"})
+    for (int ranks : {2, 3}) {
+      SCOPED_TRACE(offset + ", " + std::to_string(ranks) + " ranks");
+      const std::string args = " watertight " + dir + "/h.json --rays 1500 --offset " + offset + " --json ";
+      const auto one = runIsotrace(args.substr(1) + dir + "/one.json --ranks " + std::to_string(ranks));
+      ASSERT_EQ(one.status, 0) << one.err;
+      const auto many = runCommand(mpirun(ranks) + ISOTRACE_BINARY + args + dir + "/many.json --data-parallel");
+      ASSERT_EQ(many.status, 0) << many.err;
+      EXPECT_NE(many.out.find("split over " + std::to_string(ranks) + " MPI ranks"), std::string::npos) << many.out;
+      EXPECT_EQ(many.out.find("watertight", many.out.find("watertight") + 1), std::string::npos) << "rank 0 reports: " << many.out;
+      const nlohmann::json a = readJson(dir + "/one.json"), b = readJson(dir + "/many.json");
+      EXPECT_EQ(a, b);
+      EXPECT_EQ(b["total"]["parity_errors"], 0);
+      EXPECT_EQ(b["total"]["self_hits"], 0);
+      EXPECT_EQ(b["total"]["inside_escapes"], 0);
+      EXPECT_EQ(b["total"]["shadow_mismatches"], 0);
+      EXPECT_GT(b["total"]["crossings"].get<double>(), 1000);
+    }
+  const auto alone = runIsotrace("watertight " + dir + "/h.json --rays 10 --data-parallel");
+  EXPECT_EQ(alone.status, 2);
+  EXPECT_NE(alone.err.find("--data-parallel: runs under mpirun"), std::string::npos) << alone.err;
+  // Rank 1's scene names a volume file that is not there: one line from rank 0, no hang.
+  test::writeText(dir + "/missing.json", R"({"volumes": [{"file": ")" + dir + R"(/gone_8x8x8_uint8.raw", "isosurfaces": [{"value": 2}]}]})");
+  const std::string common = " watertight --rays 10 --data-parallel ";
+  const auto r = runCommand(mpirun(1) + ISOTRACE_BINARY + common + dir + "/h.json : -np 1 " + ISOTRACE_BINARY + common + dir +
+                            "/missing.json");
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("isotrace: rank 1 of 2: " + dir + "/gone_8x8x8_uint8.raw"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("isotrace:", r.err.find("isotrace:") + 1), std::string::npos) << "one line: " << r.err;
+}
+
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
 // writes the image of the samples gathered so far, every pixel sampled (pieces go out pass
 // by pass; data-parallel ranks stop together after a pass over all pixels), marked interrupted.
