@@ -14,7 +14,9 @@
 //   leaves the box must hit; one that reports nothing escaped through a hole.
 // - reference crossings: what the double-precision reference counts on the parity lines.
 //   Fewer crossings than that with no parity error means pairs of crossings lost whole (a
-//   thin wall that disappears: linear interpolation inside one cell), which parity cannot see.
+//   thin wall that disappears: linear interpolation inside one cell), which parity cannot see;
+//   more, pairs the walk found that the reference has not (a float solve where the field
+//   stays within its rounding of the iso value). Both are counted per ray (lost, extra).
 // - shadow mismatch: the occlusion query between two random points disagrees with the
 //   crossings traced between them (any crossing, or different classes, means occluded).
 #include <cstdint>
@@ -30,6 +32,11 @@ struct WatertightCounts {
   uint64_t rays = 0;  // per test: parity, inside and shadow each use this many
   uint64_t crossings = 0;
   uint64_t referenceCrossings = 0;  // on the parity rays' lines, by the double reference
+  // Per parity ray, the reference's count minus the hits where that is positive (lost), the
+  // hits minus the reference's where that is (extra): pairs of crossings one side has and the
+  // other not, summed ray by ray so that one ray's lost pair does not hide another's extra one.
+  uint64_t lostCrossings = 0;
+  uint64_t extraCrossings = 0;
   uint64_t parityErrors = 0;
   uint64_t selfHits = 0;
   uint64_t insideEscapes = 0;
@@ -88,6 +95,10 @@ struct WatertightOptions {
   Vec3d offset{0, 0, 0};  // added to every volume's placement (e.g. 1e5 to test far away)
   int threads = 0;        // 0: all cores; the counts do not depend on it
   bool keepFailures = false;  // keep every failing ray (at most kMaxKeptFailures per surface)
+  // With keepFailures: keep also the parity rays whose crossings differ from the reference's
+  // count on the line (not an error: pairs one count has and the other not), their `what`
+  // starting kCountDifference; a replay of such a ray reports the difference again.
+  bool keepCountDifferences = false;
   // How the renderer's queries are made: `wavefront` traces each query as an 8-ray Embree packet
   // holding the ray in every lane (World::intersectPacket), so that every answer comes from the
   // packet walk of the bricks and its 8-lane solve; `scalar` one ray at a time.
@@ -100,6 +111,7 @@ struct WatertightOptions {
   const RankExchange* exchange = nullptr;  // under mpirun: the parts are other processes' (above)
 };
 constexpr size_t kMaxKeptFailures = 100000;
+constexpr const char* kCountDifference = "crossings differ from the reference's, parity intact";
 
 std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const IntersectorSpec& intersector,
                                               const WatertightOptions& options);

@@ -3,7 +3,8 @@
 # fields (bench/rough_field.py: blobs + ripple, float32, anisotropic spacing, placed at 1e5;
 # three iso values each) and on every real volume of examples/data (three iso values each,
 # bench/exactness_real.json, at the origin and at 1e5), then one table: rays, parity errors,
-# self hits, inside escapes, shadow mismatches, and crossings lost per 1e7 reference crossings.
+# self hits, inside escapes, shadow mismatches, and crossings lost and extra per 1e7 reference
+# crossings (per ray: the reference's crossings the walk did not find, the walk's it has not).
 # Every failing ray is dumped (OUT_DIR/*.failures.txt) to replay with `isotrace watertight
 # SCENE --replay FILE`.
 #
@@ -73,13 +74,14 @@ for path in sorted(glob.glob(os.path.join(out, "*.json"))):
         else:
             what = "%s (%s)" % (os.path.basename(real[s["volume"]]["file"]), "1e5" if name.endswith("1e5") else "origin")
         ref = s["reference_crossings"]
-        lost = (ref - s["crossings"]) / ref * 1e7 if ref else 0.0
+        per = lambda n: n / ref * 1e7 if ref else 0.0
         rows.append((what, "%g" % s["iso"], s["rays"], s["parity_errors"], s["self_hits"], s["inside_escapes"],
-                     s["shadow_mismatches"], s["crossings"], ref, lost))
-head = ("volume", "iso", "rays", "parity", "self hits", "inside escapes", "shadow", "crossings", "reference", "lost / 1e7")
+                     s["shadow_mismatches"], s["crossings"], ref, per(s["lost_crossings"]), per(s["extra_crossings"])))
+head = ("volume", "iso", "rays", "parity", "self hits", "inside escapes", "shadow", "crossings", "reference", "lost / 1e7",
+        "extra / 1e7")
 lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 for r in rows:
-    lines.append("| %s | %s | %d | %d | %d | %d | %d | %d | %d | %.2f |" % r)
+    lines.append("| %s | %s | %d | %d | %d | %d | %d | %d | %d | %.2f | %.2f |" % r)
 errors = sum(r[3] + r[4] + r[5] + r[6] for r in rows)
 lines.append("")
 lines.append("%s: %d surfaces, %d errors of any kind" % (intersector, len(rows), errors))

@@ -457,6 +457,8 @@ py::dict countsOf(const WatertightCounts& c) {
   d["rays"] = c.rays;
   d["crossings"] = c.crossings;
   d["reference_crossings"] = c.referenceCrossings;
+  d["lost_crossings"] = c.lostCrossings;
+  d["extra_crossings"] = c.extraCrossings;
   d["parity_errors"] = c.parityErrors;
   d["self_hits"] = c.selfHits;
   d["inside_escapes"] = c.insideEscapes;

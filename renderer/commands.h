@@ -66,7 +66,7 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
 struct CheckFlags {
   std::string scene, intersector, json, offset, dump, replay, rayFlow;
   int rays = 100000, threads = 0, ranks = 1;
-  bool dataParallel = false;
+  bool dataParallel = false, dumpLost = false;
   long long seed = 1;
   SceneOverrides overrides;
 };

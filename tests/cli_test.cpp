@@ -454,7 +454,8 @@ TEST(Cli, WatertightAndBenchJson) {
   std::ifstream in(dir + "/w_out.json");
   const nlohmann::json w = nlohmann::json::parse(in);
   ASSERT_EQ(w.at("surfaces").size(), 2u);
-  const char* keys[] = {"rays", "crossings", "reference_crossings", "parity_errors", "self_hits", "inside_escapes",
+  const char* keys[] = {"rays", "crossings", "reference_crossings", "lost_crossings", "extra_crossings", "parity_errors",
+                        "self_hits", "inside_escapes",
                         "shadow_mismatches"};
   for (const char* key : keys) {
     uint64_t sum = 0;
@@ -468,6 +469,30 @@ TEST(Cli, WatertightAndBenchJson) {
   EXPECT_NE(text.find("\"iso\": 0.3,"), std::string::npos);  // the shortest form, not 0.29999999999999999
   EXPECT_EQ(w.at("total").at("rays"), 4000);
   EXPECT_GT(w.at("total").at("crossings").get<uint64_t>(), 1000u);
+  // Lost and extra are counted ray by ray: their difference is the totals' difference; linear
+  // interpolation loses pairs inside the gyroid's cells. --dump-lost keeps the rays whose
+  // crossings differ; they are not failures, in the run or replayed.
+  const std::string gyroid = dir + "/g.json";
+  test::writeText(gyroid, scene(R"({"procedural": {"field": "gyroid", "resolution": [32, 32, 32]}, "isosurfaces": [{"value": 0}]})"));
+  r = runIsotrace("watertight " + gyroid + " --rays 3000 --intersector linear --json " + dir + "/g_out.json --dump " + dir +
+                  "/lost.txt --dump-lost");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::ifstream gin(dir + "/g_out.json");
+  const nlohmann::json g = nlohmann::json::parse(gin);
+  const auto n = [&](const char* key) { return g.at("total").at(key).get<int64_t>(); };
+  EXPECT_EQ(n("reference_crossings") - n("crossings"), n("lost_crossings") - n("extra_crossings"));
+  EXPECT_GT(n("lost_crossings"), 10);
+  EXPECT_EQ(n("parity_errors"), 0);
+  std::ifstream lost(dir + "/lost.txt");
+  const std::string dumped((std::istreambuf_iterator<char>(lost)), std::istreambuf_iterator<char>());
+  const int64_t differing = int64_t(std::count(dumped.begin(), dumped.end(), '\n')) - 1;  // after the header
+  EXPECT_GE(differing * 2, n("lost_crossings") / 8);  // a ray loses a pair or a few
+  EXPECT_LE(differing * 2, n("lost_crossings") + n("extra_crossings"));
+  EXPECT_NE(r.out.find("0 failing rays and " + std::to_string(differing) + " whose crossings differ"), std::string::npos) << r.out;
+  r = runIsotrace("watertight " + gyroid + " --replay " + dir + "/lost.txt");
+  EXPECT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("0 of " + std::to_string(differing) + " rays fail now"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("now: crossings differ from the reference's"), std::string::npos) << r.out;
 
   r = runIsotrace("bench " + path + " --rays 500 --intersector isolation:2,reference --json " + dir + "/b_out.json");
   ASSERT_EQ(r.status, 0) << r.err;
@@ -483,7 +508,8 @@ TEST(Cli, WatertightAndBenchJson) {
   }
 
   for (const std::string& bad : {"watertight " + path + " --rays 0", "watertight " + path + " --intersector cubic",
-                                 "watertight " + path + " --ray-flow packets",
+                                 "watertight " + path + " --ray-flow packets", "watertight " + path + " --dump-lost",
+                                 "watertight " + path + " --replay " + dir + "/lost.txt --dump-lost",
                                  "bench " + path + " --intersector isolation,nope", "watertight " + dir + "/none.json"}) {
     r = runIsotrace(bad);
     EXPECT_EQ(r.status, 2) << bad;

@@ -327,8 +327,9 @@ def _as_scene(scene):
 def watertight(scene, rays=100000, offset=(0, 0, 0), seed=1, threads=0, ray_flow="wavefront", intersector=None):
     """``isotrace watertight``: every iso-surface alone under secondary rays; its JSON report as
     a dict: {"total": counts, "surfaces": [counts + volume, iso, intersector]}, counts being
-    rays, crossings, reference_crossings, parity_errors, self_hits, inside_escapes,
-    shadow_mismatches."""
+    rays, crossings, reference_crossings, lost_crossings, extra_crossings (per parity ray, the
+    reference's crossings the walk did not find, and the walk's the reference did not),
+    parity_errors, self_hits, inside_escapes, shadow_mismatches."""
     s = _as_scene(scene)
     return _core.watertight(s._text(), s.path, s._grids(), int(rays), tuple(float(o) for o in offset), int(seed), int(threads),
                             str(ray_flow), intersector or "")
