@@ -129,6 +129,62 @@ TEST(Intersectors, IsolationAgreesWithReferenceOnRandomCells) {
   EXPECT_GT(compared, 50000);
 }
 
+// Near-tangent passes: segments whose cubic (of the float segment, in double) has an extremum
+// 1e-9 to 1e-5 of the corners' magnitude (log-uniform) from zero, on either side. Float alone
+// decides many of them by rounding (the value at the extremum is within its evaluation error of zero); the
+// isolation intersector then decides in double (detail::unprovenExtremum, firstInDouble) and
+// agrees with the reference on the same segment on every one.
+TEST(Intersectors, IsolationDecidesNearTangentPassesAsTheReference) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> value(-1, 1), unit(0, 1), exponent(-9, -5);
+  int tested = 0, floatAloneWrong = 0;
+  for (int trial = 0; trial < 100000 && tested < 20000; ++trial) {
+    CellSegment<float> seg;
+    for (int c = 0; c < 8; ++c) seg.g[c] = float(value(rng));
+    seg.a = {float(unit(rng)), float(unit(rng)), float(unit(rng))};
+    seg.b = {float(unit(rng)), float(unit(rng)), float(unit(rng))};
+    // Shift the corners so that the double cubic's first interior extremum sits just off zero.
+    CellSegment<double> wide;
+    auto widen = [&] {
+      for (int c = 0; c < 8; ++c) wide.g[c] = seg.g[c];
+      wide.a = Vec3d(seg.a);
+      wide.b = Vec3d(seg.b);
+    };
+    widen();
+    const Cubic<double> cubic = cellCubic(wide);
+    double e[2];
+    if (detail::quadraticRootsInUnit(cubic.c[1], 2 * cubic.c[2], 3 * cubic.c[3], e) == 0) continue;
+    double scale = 0;
+    for (double g : wide.g) scale += std::fabs(g);
+    const double shift = cubic(e[0]) + (rng() % 2 ? 1 : -1) * std::pow(10.0, exponent(rng)) * scale;
+    for (int c = 0; c < 8; ++c) seg.g[c] = float(seg.g[c] - shift);
+    seg.f0 = trilinear(seg.g, seg.a);
+    seg.f1 = trilinear(seg.g, seg.b);
+    if (seg.f0 == 0 || seg.f1 == 0) continue;
+    widen();
+    wide.f0 = seg.f0;
+    wide.f1 = seg.f1;
+    Root<double> ref;
+    const bool refHit = ReferenceIntersector{}.first(wide, ref);
+    ASSERT_FALSE(refHit && ref.tangent) << "trial " << trial;  // 1e-9 off zero is no touch in double
+    Root<float> got;
+    const bool hit = IsolationIntersector{}.first(seg, got);
+    ++tested;
+    // What float alone would say: the first piece between the float extrema whose ends differ.
+    const Cubic<float> fc = cellCubic(seg);
+    float s[4], f[4];
+    const int n = detail::isolate(seg, fc, s, f);
+    bool floatHit = false;
+    for (int i = 0; i + 1 < n && !floatHit; ++i) floatHit = isInside(f[i]) != isInside(f[i + 1]);
+    floatAloneWrong += floatHit != refHit;
+    ASSERT_EQ(hit, refHit) << "trial " << trial;
+    ASSERT_EQ(IsolationIntersector{}.any(seg), refHit) << "trial " << trial;
+    if (hit) EXPECT_LE(std::fabs(got.s - ref.s), got.sError + 1e-6) << "trial " << trial;
+  }
+  EXPECT_GT(tested, 10000);
+  EXPECT_GT(floatAloneWrong, tested / 100);  // the cases are hard: float alone decides many wrongly
+}
+
 // Whole rays through real volumes and procedural fields, against the reference.
 struct VolumeCase {
   const char* name;

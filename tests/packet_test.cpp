@@ -156,6 +156,18 @@ std::vector<CellSegment<float>> hardSegments(size_t count, uint32_t seed) {
       seg.a[a] = rng() % 4 == 0 ? float(rng() % 2) : u01(rng);
       seg.b[a] = rng() % 4 == 0 ? float(rng() % 2) : u01(rng);
     }
+    if (kind == 4 && rng() % 2) {
+      // Near-tangent: every corner shifted so that the cubic's first interior extremum lies
+      // within a few 1e-7 of zero, and a walk's doubt (CellSegment::doubt) of up to 2^10 ulps:
+      // lanes the vector solve hands to the double decision.
+      const Cubic<float> cubic = cellCubic(seg);
+      float e[2];
+      if (detail::quadraticRootsInUnit(cubic.c[1], 2 * cubic.c[2], 3 * cubic.c[3], e) > 0) {
+        const float shift = cubic(e[0]) + 3e-7f * sym(rng);
+        for (float& g : seg.g) g -= shift;
+      }
+      seg.doubt = std::ldexp(std::numeric_limits<float>::epsilon(), int(rng() % 11));
+    }
     seg.f0 = trilinear(seg.g, seg.a);
     seg.f1 = trilinear(seg.g, seg.b);
     const float tiny = std::numeric_limits<float>::denorm_min();

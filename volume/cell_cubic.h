@@ -3,6 +3,8 @@
 // "Fast and Accurate Ray-Voxel Intersection Techniques for Iso-Surface Ray Tracing", eq. 1-3).
 // Everything is parameterised over the segment, s in [0, 1], in cell-local coordinates, so
 // the coefficients are of the size of the corner values whatever the world scale is.
+#include <limits>
+
 #include "volume/vec3.h"
 
 namespace iso {
@@ -15,6 +17,13 @@ struct CellSegment {
   Vec3<Real> b;    // local coordinates at s = 1
   Real f0 = 0;     // field at s = 0 and s = 1, evaluated with trilinear() so that the
   Real f1 = 0;     // neighbouring cell computes the same bits at the shared face
+  // A float walk that has the ray in double (ExactEnds) adds the segment's end points on it
+  // (exact), and `doubt`: times the sum of |g|, how far the float cubic can be from the one
+  // of the exact segment (rounding of a and b, and of the evaluation). Where the cubic's value
+  // at an extremum is that close to zero, the isolation intersector decides in double.
+  bool hasExact = false;
+  Vec3<double> exactA, exactB;
+  Real doubt = Real(32) * std::numeric_limits<Real>::epsilon();
 };
 
 template <typename Real>

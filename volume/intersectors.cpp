@@ -50,4 +50,30 @@ std::string intersectorName(const IntersectorSpec& spec) {
   return "?";
 }
 
+namespace detail {
+
+bool firstInDouble(const CellSegment<float>& seg, Root<float>& root) {
+  CellSegment<double> wide;
+  for (int i = 0; i < 8; ++i) wide.g[i] = seg.g[i];
+  wide.a = seg.hasExact ? seg.exactA : Vec3d(seg.a);
+  wide.b = seg.hasExact ? seg.exactB : Vec3d(seg.b);
+  wide.f0 = seg.f0;
+  wide.f1 = seg.f1;
+  const Cubic<double> cubic = cellCubic(wide);
+  double s[4], f[4];
+  const int n = isolate(wide, cubic, s, f);
+  for (int i = 0; i + 1 < n; ++i) {
+    if (isInside(f[i]) != isInside(f[i + 1])) {
+      const Root<double> r = refineWithBound(s[i], s[i + 1], f[i], f[i + 1], 200, wide, cubic);
+      const float rs = std::clamp(float(r.s), 0.f, 1.f);
+      const float error = float(r.sError + std::fabs(double(rs) - r.s));
+      root = {rs, std::nextafter(error, 2.f), false};
+      return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace detail
+
 }  // namespace iso

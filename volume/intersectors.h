@@ -240,15 +240,43 @@ struct SchwarzeIntersector {
   }
 };
 
+namespace detail {
+
+// Whether the float solve cannot tell the class at an extremum inside the segment: the cubic's
+// value there lies within seg.doubt (the rounding of the segment's end points and of the
+// evaluation) of zero (f[1..n-2] from isolate). Such a segment is a near-tangent pass (a close
+// pair of crossings, or none): float would lose or invent the pair by rounding alone.
+inline bool unprovenExtremum(const CellSegment<float>& seg, int n, const float f[4]) {
+  float scale = 0;
+  for (float g : seg.g) scale += std::fabs(g);
+  const float error = seg.doubt * scale;
+  for (int i = 1; i + 1 < n; ++i)
+    if (std::fabs(f[i]) <= error) return true;
+  return false;
+}
+
+// The first crossing of the float segment decided in double: the same corners and end values
+// (the ends' classes are the walk's, shared with the neighbouring cells), the end points on the
+// ray in double where the walk gave them (else the float ones), the cubic and its extrema in
+// double, refined to adjacent doubles. The root comes back as float, its bound grown by the
+// rounding of s to float.
+bool firstInDouble(const CellSegment<float>& seg, Root<float>& root);  // (intersectors.cpp: one instance for every caller)
+
+}  // namespace detail
+
 // Marmitt et al. 2004: split the segment at the cubic's extrema, take the first piece whose
 // ends differ in class, refine there (Illinois regula falsi). Exact in which crossing it
-// finds, approximate only in where, and that error is bounded by the final bracket.
+// finds, approximate only in where, and that error is bounded by the final bracket. Where the
+// class at an extremum is not proven in float (its value within the evaluation error of zero),
+// the segment is decided in double instead (detail::firstInDouble): a near-tangent pass keeps
+// or loses its pair of crossings as the double reference does, not by float rounding.
 struct IsolationIntersector {
   int iterations = 8;
   bool first(const CellSegment<float>& seg, Root<float>& root) const {
     const Cubic<float> cubic = cellCubic(seg);
     float s[4], f[4];
     const int n = detail::isolate(seg, cubic, s, f);
+    if (detail::unprovenExtremum(seg, n, f)) return detail::firstInDouble(seg, root);
     for (int i = 0; i + 1 < n; ++i) {
       if (isInside(f[i]) != isInside(f[i + 1])) {
         root = detail::refineWithBound(s[i], s[i + 1], f[i], f[i + 1], iterations, seg, cubic);
@@ -263,6 +291,10 @@ struct IsolationIntersector {
     const Cubic<float> cubic = cellCubic(seg);
     float s[4], f[4];
     const int n = detail::isolate(seg, cubic, s, f);
+    if (detail::unprovenExtremum(seg, n, f)) {
+      Root<float> r;
+      return detail::firstInDouble(seg, r);
+    }
     for (int i = 1; i + 1 < n; ++i)
       if (isInside(f[i]) != isInside(f[0])) return true;
     return false;

@@ -48,6 +48,7 @@ struct Lanes {
   F8 k[4], fk[4];
   F8 f0, f1;
   F8 scale;
+  F8 doubt;  // CellSegment::doubt
 };
 
 inline void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lanes& L) {
@@ -62,6 +63,7 @@ inline void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lane
     }
     L.f0[l] = s.f0;
     L.f1[l] = s.f1;
+    L.doubt[l] = s.doubt;
   }
   // cellCubic: along x (linear in s), then y (quadratic), then z (cubic).
   const F8 d[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
@@ -115,10 +117,21 @@ inline void prepare(const CellSegment<float>* const segs[W], uint32_t mask, Lane
   L.scale = scale;
 }
 
+// The lanes of `mask` whose class at an extremum is not proven in float (detail::unprovenExtremum):
+// the scalar intersector decides them in double.
+inline uint32_t unprovenLanes(const Lanes& L, uint32_t mask) {
+  const F8 evalError = L.doubt * L.scale;
+  const I8 unproven = (L.n1 & (FABS8(L.fk[1]) <= evalError)) | (L.n2 & (FABS8(L.fk[2]) <= evalError));
+  return bits8(unproven) & mask;
+}
+
 __attribute__((target_clones("avx2", "default")))
-uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, int iterations, Root<float> roots[W]) {
+uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, int iterations, Root<float> roots[W],
+                        uint32_t* unproven) {
   Lanes L;
   prepare(segs, mask, L);
+  *unproven = unprovenLanes(L, mask);
+  mask &= ~*unproven;
   // The first piece whose ends differ in class.
   const I8 in0 = INSIDE8(L.fk[0]), in1 = INSIDE8(L.fk[1]), in2 = INSIDE8(L.fk[2]), in3 = INSIDE8(L.fk[3]);
   const I8 c01 = in0 != in1, c12 = L.n1 & (in1 != in2), c23 = L.n2 & (in2 != in3);
@@ -176,12 +189,15 @@ uint32_t isolationFirst(const CellSegment<float>* const segs[W], uint32_t mask, 
 }
 
 __attribute__((target_clones("avx2", "default")))
-uint32_t isolationAny(const CellSegment<float>* const segs[W], uint32_t mask) {
+uint32_t isolationAny(const CellSegment<float>* const segs[W], uint32_t mask, uint32_t* unproven) {
   Lanes L;
   prepare(segs, mask, L);
   const I8 in0 = INSIDE8(L.fk[0]);
-  const I8 yes = (in0 != INSIDE8(L.f1)) | (L.n1 & (INSIDE8(L.fk[1]) != in0)) | (L.n2 & (INSIDE8(L.fk[2]) != in0));
-  return bits8(yes) & mask;
+  const I8 ends = in0 != INSIDE8(L.f1);
+  // Ends of different classes cross whatever the extrema say; otherwise an unproven extremum decides in double.
+  *unproven = unprovenLanes(L, mask) & ~bits8(ends);
+  const I8 yes = ends | (L.n1 & (INSIDE8(L.fk[1]) != in0)) | (L.n2 & (INSIDE8(L.fk[2]) != in0));
+  return bits8(yes) & mask & ~*unproven;
 }
 
 }  // namespace
@@ -201,7 +217,13 @@ uint32_t IsolationPacket::first(const CellSegment<float>* const segs[kPacketLane
     }
     return found;
   }
-  return isolationFirst(segs, mask, iterations, roots);
+  uint32_t unproven = 0;
+  uint32_t found = isolationFirst(segs, mask, iterations, roots, &unproven);
+  for (uint32_t rest = unproven; rest; rest &= rest - 1) {
+    const int l = __builtin_ctz(rest);
+    if (detail::firstInDouble(*segs[l], roots[l])) found |= 1u << l;
+  }
+  return found;
 }
 
 uint32_t IsolationPacket::any(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask) const {
@@ -214,7 +236,14 @@ uint32_t IsolationPacket::any(const CellSegment<float>* const segs[kPacketLanes]
     }
     return found;
   }
-  return isolationAny(segs, mask);
+  uint32_t unproven = 0;
+  uint32_t found = isolationAny(segs, mask, &unproven);
+  for (uint32_t rest = unproven; rest; rest &= rest - 1) {
+    const int l = __builtin_ctz(rest);
+    Root<float> root;
+    if (detail::firstInDouble(*segs[l], root)) found |= 1u << l;
+  }
+  return found;
 }
 
 }  // namespace iso
