@@ -485,6 +485,8 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
   return reports;
 }
 
+bool FailedRay::countDifference() const { return what.rfind(kCountDifference, 0) == 0; }
+
 const char* testName(FailedRay::Test t) {
   switch (t) {
     case FailedRay::Test::Parity: return "parity";
@@ -657,7 +659,7 @@ std::vector<FailedRay> replayFailures(const SceneDesc& scene, const IntersectorS
     if (!slot)
       slot = std::make_unique<AloneSurface>(scene, size_t(given.volume), size_t(given.surface), intersector, offset, flow, ranks);
     FailedRay r = given;
-    slot->checker->keepCountDifferences(given.what.rfind(kCountDifference, 0) == 0);
+    slot->checker->keepCountDifferences(given.countDifference());
     WatertightCounts counts;
     TraversalStats stats;
     std::vector<FailedRay> failed;

@@ -60,6 +60,8 @@ struct FailedRay {
   std::vector<double> reference;  // parity: the reference's crossings on the line (same t)
   bool occluded = false;        // shadow: what the occlusion query said
   std::string what;             // the failure: "parity error (a hole)", "self hit", ...
+  // Kept by WatertightOptions::keepCountDifferences: crossings differ, no error (kCountDifference).
+  bool countDifference() const;
 };
 const char* testName(FailedRay::Test t);
 

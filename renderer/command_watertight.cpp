@@ -40,8 +40,6 @@ std::string listOf(const std::vector<double>& ts) {
   return s;
 }
 
-bool isCountDifference(const FailedRay& r) { return r.what.rfind(kCountDifference, 0) == 0; }
-
 // `--replay FILE`: each failing ray of a dump, run alone again; what it found then and now.
 int replay(const CheckFlags& flags) {
   for (const auto& [given, name] : {std::pair{!flags.intersector.empty(), "--intersector"}, {!flags.offset.empty(), "--offset"},
@@ -62,7 +60,7 @@ int replay(const CheckFlags& flags) {
   for (size_t i = 0; i < now.size(); ++i) {
     const FailedRay& was = file.rays[i];
     const FailedRay& is = now[i];
-    failing += is.what.empty() || isCountDifference(is) ? 0 : 1;
+    failing += is.what.empty() || is.countDifference() ? 0 : 1;
     std::printf("ray %zu: %s test, volume %d, iso-surface %d (iso %.17g), ray %llu of seed %llu\n", i + 1, testName(is.test),
                 is.volume, is.surface, scene.volumes[size_t(is.volume)].isosurfaces[size_t(is.surface)].value,
                 (unsigned long long)is.index, (unsigned long long)file.seed);
@@ -192,7 +190,7 @@ int check(const CheckFlags& flags, const MpiJob& job) {
     file.ranks = ranks ? job.size() : options.ranks;  // a replay splits the volume the same way, in one process
     for (const WatertightReport& r : reports) file.rays.insert(file.rays.end(), r.failures.begin(), r.failures.end());
     writeFailures(flags.dump, file);
-    const size_t differing = size_t(std::count_if(file.rays.begin(), file.rays.end(), isCountDifference));
+    const size_t differing = size_t(std::count_if(file.rays.begin(), file.rays.end(), [](const FailedRay& r) { return r.countDifference(); }));
     std::printf("%zu failing rays%s written to %s (replay: isotrace watertight %s --replay %s)\n",
                 file.rays.size() - differing,
                 flags.dumpLost ? (" and " + std::to_string(differing) + " whose crossings differ from the reference's").c_str() : "",
