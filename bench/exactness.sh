@@ -11,7 +11,10 @@
 # Options: --rough-rays N (default 100000000 per surface), --real-rays N (default 10000000),
 #          --seeds "1 2 3" (rough fields), --intersector NAME (default isolation; `reference`
 #          is the double-precision control), --ray-flow F (default wavefront: every query through
-#          the packet walk; scalar: one ray at a time), --threads N, --out DIR (default out/exactness).
+#          the packet walk; scalar: one ray at a time), --threads N, --out DIR (default out/exactness),
+#          --resume (keep the runs OUT_DIR already has a report of: the run is a sequence of parts,
+#          one rough field or one real volume at one offset each, so a stopped run goes on where it
+#          stopped; use it only with the same build and options).
 # Time: the machine does about 1e5 rays per second per core: the defaults take hours. For a
 # quick look: bench/exactness.sh --rough-rays 1000000 --real-rays 100000.
 set -euo pipefail
@@ -23,6 +26,7 @@ intersector=isolation
 rayFlow=wavefront
 threads=0
 out=out/exactness
+resume=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --rough-rays) roughRays="$2"; shift 2 ;;
@@ -32,6 +36,7 @@ while [ $# -gt 0 ]; do
     --ray-flow) rayFlow="$2"; shift 2 ;;
     --threads) threads="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
+    --resume) resume=1; shift ;;
     *) echo "exactness: unknown option '$1' (see the head of bench/exactness.sh)" >&2; exit 2 ;;
   esac
 done
@@ -42,11 +47,12 @@ isotrace=build/isotrace
 [ -x $isotrace ] || { echo "exactness: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 mkdir -p "$out"
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
-echo "exactness: intersector $intersector, $rayFlow flow, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee "$out/README.txt"
+echo "exactness: intersector $intersector, $rayFlow flow, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee -a "$out/README.txt"
 
 run() {  # NAME SCENE RAYS OFFSET
   local name=$1 scene=$2 rays=$3 offset=$4
   [ "$rays" -gt 0 ] || return 0
+  if [ $resume = 1 ] && [ -s "$out/$name.json" ]; then echo "exactness: $name: kept from before" >&2; return 0; fi
   echo "exactness: $name: $rays rays per surface, offset $offset ..." >&2
   $isotrace watertight "$scene" --rays "$rays" --intersector "$intersector" --ray-flow "$rayFlow" --offset "$offset" --threads "$threads" \
     --json "$out/$name.json" --dump "$out/$name.failures.txt" > "$out/$name.txt"
@@ -56,8 +62,20 @@ for seed in $seeds; do
   scene=$(bench/rough_field.py "$out/fields" --seed "$seed")
   run "rough_$seed" "$scene" "$roughRays" 0,0,0
 done
+# One scene per real volume (its three iso values), so each finishes and reports on its own.
+volumes=$(python3 - "$out/scenes" <<'PY'
+import json, os, sys
+os.makedirs(sys.argv[1], exist_ok=True)
+for i, v in enumerate(json.load(open("bench/exactness_real.json"))["volumes"]):
+    v = dict(v, file=os.path.abspath(os.path.join("bench", v["file"])))
+    json.dump({"volumes": [v]}, open(os.path.join(sys.argv[1], "real_v%d.json" % i), "w"))
+    print(i)
+PY
+)
 for offset in 0,0,0 1e5,1e5,1e5; do
-  run "real_at_${offset%%,*}" bench/exactness_real.json "$realRays" "$offset"
+  for v in $volumes; do
+    run "real_at_${offset%%,*}_v$v" "$out/scenes/real_v$v.json" "$realRays" "$offset"
+  done
 done
 
 python3 - "$out" "$intersector" <<'PY'
@@ -71,8 +89,9 @@ for path in sorted(glob.glob(os.path.join(out, "*.json"))):
     for s in report["surfaces"]:
         if name.startswith("rough"):
             what = "%s (1e5)" % name
-        else:
-            what = "%s (%s)" % (os.path.basename(real[s["volume"]]["file"]), "1e5" if name.endswith("1e5") else "origin")
+        else:  # real_at_OFFSET_vN: volume N of bench/exactness_real.json alone
+            offset, volume = name[len("real_at_"):].rsplit("_v", 1)
+            what = "%s (%s)" % (os.path.basename(real[int(volume)]["file"]), "1e5" if offset == "1e5" else "origin")
         ref = s["reference_crossings"]
         per = lambda n: n / ref * 1e7 if ref else 0.0
         rows.append((what, "%g" % s["iso"], s["rays"], s["parity_errors"], s["self_hits"], s["inside_escapes"],
