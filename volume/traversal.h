@@ -370,6 +370,15 @@ class CellWalk {
         m_cell[a] = (*m_startCell)[a];
       } else if (a == entryAxis) {
         m_cell[a] = pos ? lo[a] : hi[a] - 1;
+      } else if (entryAxis < 0 && m_exact) {
+        // A ray that starts inside the box starts in the cell of its exact origin. The float
+        // origin can round onto a face the exact one lies just short of (a spawned ray 2e-6
+        // below z = 87, where float's spacing is 7.6e-6): its walk began in the cell beyond,
+        // with a zero-length segment whose face took its class where the exact ray crosses that
+        // plane, behind its origin: a crossing at the start where there is none, and another
+        // from the next ray (lidc2 at iso 18, extra pairs).
+        const double p = m_exact->org[a] + m_exact->tnear * m_exact->dir[a];
+        m_cell[a] = int(std::clamp(p, double(lo[a]), double(hi[a] - 1)));
       } else {
         const Real p = ray.org[a] + t0 * ray.dir[a];
         // Clamped first, then truncated: the same cell as floor-then-clamp (lo >= 0), cheaper, and
@@ -480,18 +489,22 @@ class CellWalk {
     // a seam) compute the same float value, the same doubt and the same double class, so they
     // agree; without it a near-tangent pass straddling a face lost or gained its pair of
     // crossings by rounding (on lidc2 at iso 18, ~27 lost and ~45 extra per 1e7 crossings).
+    // A float value of exactly 0 is in doubt too: the exact-zero rule below (the class the ray
+    // had) is for faces on the surface in double as well (integer data, corners at the iso
+    // value); a float point that rounded onto a zero line of the face the exact ray passes
+    // 1e-6 from takes the exact ray's class (a lost pair each on lidc2 at iso 18, 1e6 rays).
     if constexpr (std::is_same_v<Real, float>) {
       if (const ExactEnds* exact = m_exact) {
         exactSegment(*exact, enterAxis, leaveAxis, seg);
-        if (enterAxis >= 0 && !m_startGiven && seg.f0 != Real(0) && !atGridFace(enterAxis, true) &&
+        if (enterAxis >= 0 && !m_startGiven && !atGridFace(enterAxis, true) &&
             faceInDoubt(seg.f0, seg.g, enterAxis, seg.a[enterAxis], m_ta)) {
           const int c = exactEndClass(cells, *exact, m_cell, 0, enterAxis, gridFace(enterAxis, true));
-          if (c != 0 && (c > 0) != (seg.f0 > Real(0))) seg.f0 = c > 0 ? kTiny : -kTiny;
+          if (c != 0 && (seg.f0 == Real(0) || (c > 0) != (seg.f0 > Real(0)))) seg.f0 = c > 0 ? kTiny : -kTiny;
         }
-        if (m_throughFace && !atGridFace(leaveAxis, false) && seg.f1 != Real(0) &&
+        if (m_throughFace && !atGridFace(leaveAxis, false) &&
             faceInDoubt(seg.f1, seg.g, leaveAxis, seg.b[leaveAxis], m_tb)) {
           const int c = exactEndClass(cells, *exact, m_cell, 0, leaveAxis, gridFace(leaveAxis, false));
-          if (c != 0 && (c > 0) != (seg.f1 > Real(0))) seg.f1 = c > 0 ? kTiny : -kTiny;
+          if (c != 0 && (seg.f1 == Real(0) || (c > 0) != (seg.f1 > Real(0)))) seg.f1 = c > 0 ? kTiny : -kTiny;
         }
       }
     }
