@@ -309,5 +309,39 @@ TEST(StartClass, AnOriginJustOutsideTheBoxStartsOnIt) {
   }
 }
 
+// A ray that starts inside the box starts in the cell of its exact origin, not of its float one.
+// The field is z - 86.999999 (the surface 1e-6 below the face z = 87); the origin lies 2.2e-6
+// below the face, outside, and heads down and away. In float its z rounds onto the face (float's
+// spacing there is 7.6e-6): a walk begun in the cell above, positive all over, reported a
+// crossing at the start where the ray meets none (found on lidc2, where each such ray spawned
+// from a hit added a pair of crossings).
+TEST(StartClass, AStartInTheCellOfTheExactOrigin) {
+  const Vec3i dims{4, 3, 90};
+  std::vector<float> v;
+  for (int z = 0; z < dims.z; ++z)
+    for (int i = 0; i < dims.x * dims.y; ++i) v.push_back(float(double(z) - 86.999999));
+  const Grid grid(dims, std::move(v));
+  const BrickGrid bricks(grid);
+  const Vec3d org{0.5, 1, 86.9999978}, dir = normalize(Vec3d{1, 0, -0.022});
+  ASSERT_EQ(float(org.z), 87.f);  // the premise: float's origin is on the face
+  for (const char* name : {"isolation", "reference"}) {
+    SCOPED_TRACE(name);
+    IntersectorSpec spec;
+    std::string error;
+    ASSERT_TRUE(parseIntersector(name, spec, error));
+    const IsoSurface surface(grid, bricks, 0, spec);
+    TraversalStats stats;
+    SurfaceHit hit;
+    for (StartClass start : {StartClass::Outside, StartClass::Unknown}) {
+      EXPECT_FALSE(surface.intersect(org, dir, 0, 1e30, hit, stats, start));
+      EXPECT_FALSE(surface.occluded(org, dir, 0, 1e30, stats, start));
+    }
+    // Given the other class, the crossing is at the start.
+    ASSERT_TRUE(surface.intersect(org, dir, 0, 1e30, hit, stats, StartClass::Inside));
+    EXPECT_LT(hit.t, 1e-4);
+    EXPECT_FALSE(hit.insideAfter);
+  }
+}
+
 }  // namespace
 }  // namespace iso
