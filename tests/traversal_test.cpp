@@ -345,5 +345,49 @@ TEST(StartClass, AStartInTheCellOfTheExactOrigin) {
   }
 }
 
+// A brick whose face a spawned ray's float origin rounds onto, while its exact origin lies just
+// beyond that face heading away, holds none of the exact ray and does not start it. The field is
+// z - 88.000002 (the surface 2e-6 above the brick seam z = 88); the origin lies 3.5e-6 above the
+// seam, inside, and heads up and away; in float its z rounds onto the seam. The brick below used
+// to walk a zero-length segment comparing the given class with the seam's, which the exact ray
+// crosses behind its origin, outside: a crossing at the start where the ray meets none (found on
+// hydrogen, HeadMR, lidc2, smoke and example4d, each such spawned ray adding a pair).
+TEST(StartClass, ABrickTheExactOriginLiesBeyondDoesNotStartTheRay) {
+  const Vec3i dims{4, 3, 100};
+  std::string bytes;
+  for (int z = 0; z < dims.z; ++z)
+    for (int i = 0; i < dims.x * dims.y; ++i) {
+      const float v = float(double(z) - 88.000002);
+      bytes.append(reinterpret_cast<const char*>(&v), sizeof v);
+    }
+  const std::string dir = test::scratchDir();
+  test::writeBytes(dir + "/seam_4x3x100_float32.raw", bytes);
+  for (const char* name : {"isolation", "reference"}) {
+    SCOPED_TRACE(name);
+    const World world(parseSceneText(R"({"volumes": [{"file": ")" + dir + R"(/seam_4x3x100_float32.raw",
+                                                      "isosurfaces": [{"value": 0}]}]})",
+                                     "seam.json"),
+                      specNamed(name));
+    ASSERT_EQ(BrickGrid::kCells * 11, 88);  // the premise: z = 88 is a seam between bricks
+    Ray ray;
+    ray.org64 = Vec3d{0.5, 1, 88.0000035};
+    ray.org = Vec3f(*ray.org64);
+    ASSERT_EQ(ray.org.z, 88.f);  // and the float origin lies on it
+    ray.dir = normalize(Vec3f{1, 0, 0.022f});
+    ray.fromSurface = 0;
+    TraversalStats stats;
+    Hit hit;
+    ray.fromInside = true;
+    EXPECT_FALSE(world.intersect(ray, hit, stats));
+    EXPECT_FALSE(world.occluded(ray, stats));
+    // Given the other class, the crossing is at the start.
+    ray.fromInside = false;
+    ASSERT_TRUE(world.intersect(ray, hit, stats));
+    EXPECT_LT(hit.t, 1e-4f);
+    EXPECT_TRUE(hit.insideAfter);
+    EXPECT_TRUE(world.occluded(ray, stats));
+  }
+}
+
 }  // namespace
 }  // namespace iso

@@ -461,20 +461,18 @@ bool IsoSurface::crossesAtInactiveStart(const Vec3d& org, const Vec3d& dir, doub
     const int32_t primitive = m_primitiveOf[m_bricks.brickOf(Vec3i{int(p.x), int(p.y), int(p.z)})];
     if (primitive >= 0 && m_primitives[primitive].holds(p, margin)) return false;
   }
-  // The start cell as the traversal finds it: in the precision of the intersector.
-  auto startCell = [&](auto real, Vec3i& cell) {
-    using Real = decltype(real);
-    const GridRay<Real> ray = queryRay<Real>(m_grid, org, dir, tnear, start);
-    if (!ray.valid()) return false;
-    for (int a = 0; a < 3; ++a) {
-      const Real q = ray.org[a] + Real(tnear) * ray.dir[a];
-      if (!(q >= Real(0) && q <= Real(dims[a] - 1))) return false;
-      cell[a] = std::min(int(std::floor(q)), dims[a] - 2);
-    }
-    return true;
-  };
+  // The start cell as the traversal finds it: the cell of the start in double, in both
+  // precisions (the float walk starts in its exact origin's cell, and a brick whose face its
+  // float origin rounded onto but its exact one lies beyond does not start it: CellWalk::begin).
+  const GridRay<double> ray = queryRay<double>(m_grid, org, dir, tnear, start);
+  if (!ray.valid()) return false;
   Vec3i cell;
-  const bool inGrid = m_spec.kind == IntersectorKind::Reference ? startCell(0.0, cell) : startCell(0.f, cell);
+  bool inGrid = true;
+  for (int a = 0; a < 3; ++a) {
+    const double q = ray.org[a] + tnear * ray.dir[a];
+    inGrid = inGrid && q >= 0 && q <= double(dims[a] - 1);
+    if (inGrid) cell[a] = std::min(int(std::floor(q)), dims[a] - 2);
+  }
   // Covered when the cell lies in the tight box of an active brick (Embree calls that
   // primitive for a ray starting inside its box); every other cell is seen by no query.
   if (!inGrid) return false;

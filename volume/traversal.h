@@ -342,6 +342,21 @@ class CellWalk {
       if (tl > t0) { t0 = tl; entryAxis = a; }
       t1 = std::min(t1, th);
     }
+    if (entryAxis < 0 && m_exact && !m_startCell) {
+      // A float start inside the box (or on its boundary) whose exact start lies beyond one of
+      // its faces between bricks, heading away: float rounded the origin onto that face, and
+      // the box holds none of the exact ray (the brick beyond starts it). Walked here, its
+      // zero-length segment compared the given class with the face's class where the exact ray
+      // crosses that plane, behind its origin: a crossing at the start where there is none, and
+      // another from the next spawned ray (extra pairs on hydrogen, HeadMR, lidc2, smoke,
+      // example4d). (An exact start behind a face heading in is left to both bricks, as before:
+      // the one behind compares the given class with that face's, ahead of the origin.)
+      for (int a = 0; a < 3; ++a) {
+        const double p = m_exact->org[a] + m_exact->tnear * m_exact->dir[a], d = m_exact->dir[a];
+        if ((p < double(lo[a]) && lo[a] > 0 && !(d > 0)) || (p > double(hi[a]) && hi[a] < m_cells->dims[a] - 1 && !(d < 0)))
+          return false;
+      }
+    }
     if (m_startCell) {
       // (Rounding can put the box's entry just past tnear, or its exit just before it: the cell
       // holds tnear by the caller's decision, and its segment is then of zero length.)
