@@ -353,11 +353,13 @@ TEST(StartClass, AStartInTheCellOfTheExactOrigin) {
 // crosses behind its origin, outside: a crossing at the start where the ray meets none (found on
 // hydrogen, HeadMR, lidc2, smoke and example4d, each such spawned ray adding a pair).
 TEST(StartClass, ABrickTheExactOriginLiesBeyondDoesNotStartTheRay) {
+  // (Samples at x = y = 0 below the seam are 1: the brick below holds surface in the cells next
+  // to the ray's start, so Embree calls it for this ray; the cells the ray walks keep z - 88.000002.)
   const Vec3i dims{4, 3, 100};
   std::string bytes;
   for (int z = 0; z < dims.z; ++z)
     for (int i = 0; i < dims.x * dims.y; ++i) {
-      const float v = float(double(z) - 88.000002);
+      const float v = i == 0 && z >= 80 && z < 88 ? 1.f : float(double(z) - 88.000002);
       bytes.append(reinterpret_cast<const char*>(&v), sizeof v);
     }
   const std::string dir = test::scratchDir();

@@ -170,7 +170,9 @@ TEST(WatertightDump, TheHuntedFailuresPass) {
                                             {"real_volumes", "real_hydrogen_20_1e5", 1},
                                             {"real_volumes", "real_lidc2_restarts", 18},
                                             {"real_volumes", "real_lidc2_pairs", 31},
-                                            {"real_volumes", "real_lidc2_faces", 4}}) {
+                                            {"real_volumes", "real_lidc2_faces", 4},
+                                            {"real_volumes", "real_seams", 1},
+                                            {"real_volumes", "real_seams_1e5", 1}}) {
     const SceneDesc scene = parseSceneFile(dir + "/" + hunt.scene + ".json");
     const FailureFile file = readFailures(dir + "/" + hunt.failures + ".failures.txt");
     ASSERT_EQ(file.rays.size(), hunt.count) << hunt.failures;
