@@ -161,6 +161,7 @@ TEST(WatertightDump, TheHuntedFailuresPass) {
     size_t count;
   };
   for (const Hunt& hunt : std::vector<Hunt>{{"rough_1", "rough_1", 1},
+                                            {"rough_1", "rough_1_iso", 1},
                                             {"rough_2", "rough_2", 8},
                                             {"rough_2", "rough_2_5b406aa", 2},
                                             {"rough_3", "rough_3", 2},

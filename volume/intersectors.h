@@ -255,9 +255,10 @@ inline bool unprovenExtremum(const CellSegment<float>& seg, int n, const float f
   return false;
 }
 
-// The first crossing of the float segment decided in double: the same corners and end values
-// (the ends' classes are the walk's, shared with the neighbouring cells), the end points on the
-// ray in double where the walk gave them (else the float ones), the cubic and its extrema in
+// The first crossing of the float segment decided in double: the same end values (the ends'
+// classes are the walk's, shared with the neighbouring cells), the corners minus the iso value
+// and the end points on the ray in double where the walk gave them (else the float ones: a float
+// corner value subtracts the iso value rounded to float), the cubic and its extrema in
 // double, refined to adjacent doubles. The root comes back as float, its bound grown by the
 // rounding of s to float.
 bool firstInDouble(const CellSegment<float>& seg, Root<float>& root);  // (intersectors.cpp: one instance for every caller)

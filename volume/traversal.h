@@ -624,6 +624,7 @@ class CellWalk {
       return p;
     };
     seg.hasExact = true;
+    m_cells->load(m_cell, e.iso, seg.exactG);
     seg.exactA = point(enterAxis, m_ta, enterAxis >= 0 ? seg.a[enterAxis] : Real(0));
     seg.exactB = point(leaveAxis, m_tb, leaveAxis >= 0 ? seg.b[leaveAxis] : Real(0));
     Real extent = 0;
