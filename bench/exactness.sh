@@ -14,7 +14,8 @@
 #          the packet walk; scalar: one ray at a time), --threads N, --out DIR (default out/exactness),
 #          --resume (keep the runs OUT_DIR already has a report of: the run is a sequence of parts,
 #          one rough field or one real volume at one offset each, so a stopped run goes on where it
-#          stopped; use it only with the same build and options).
+#          stopped; use it only with the same build and options). The run uses its own copy of
+#          build/isotrace (OUT_DIR/isotrace, kept by --resume), so rebuilding while it runs is safe.
 # Time: the machine does about 1e5 rays per second per core: the defaults take hours. For a
 # quick look: bench/exactness.sh --rough-rays 1000000 --real-rays 100000.
 set -euo pipefail
@@ -43,9 +44,11 @@ done
 for n in "$roughRays" "$realRays" "$threads"; do
   [[ "$n" =~ ^[0-9]+$ ]] || { echo "exactness: '$n' is not a count" >&2; exit 2; }
 done
-isotrace=build/isotrace
-[ -x $isotrace ] || { echo "exactness: build first (./run.sh or ./test.sh)" >&2; exit 2; }
+[ -x build/isotrace ] || { echo "exactness: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 mkdir -p "$out"
+# A copy of the binary: the parts of one table come from one build even if build/ changes.
+isotrace="$out/isotrace"
+if [ $resume = 0 ] || [ ! -x "$isotrace" ]; then cp build/isotrace "$isotrace"; fi
 commit=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
 echo "exactness: intersector $intersector, $rayFlow flow, commit $commit, $(date -u +%Y-%m-%dT%H:%MZ), $(nproc) cores" | tee -a "$out/README.txt"
 
@@ -54,7 +57,7 @@ run() {  # NAME SCENE RAYS OFFSET
   [ "$rays" -gt 0 ] || return 0
   if [ $resume = 1 ] && [ -s "$out/$name.json" ]; then echo "exactness: $name: kept from before" >&2; return 0; fi
   echo "exactness: $name: $rays rays per surface, offset $offset ..." >&2
-  $isotrace watertight "$scene" --rays "$rays" --intersector "$intersector" --ray-flow "$rayFlow" --offset "$offset" --threads "$threads" \
+  "$isotrace" watertight "$scene" --rays "$rays" --intersector "$intersector" --ray-flow "$rayFlow" --offset "$offset" --threads "$threads" \
     --json "$out/$name.json" --dump "$out/$name.failures.txt" > "$out/$name.txt"
 }
 for seed in $seeds; do

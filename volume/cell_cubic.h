@@ -21,11 +21,15 @@ struct CellSegment {
   // (exact), and `doubt`: times the sum of |g|, how far the float cubic can be from the one
   // of the exact segment (rounding of a and b, and of the evaluation). Where the cubic's value
   // at an extremum is that close to zero, the isolation intersector decides in double.
-  // And the corners minus the iso value in double: g subtracts the iso value rounded to float
-  // (0.97 by 2.9e-8), enough to put a near-tangent pass on the wrong side of zero in double too.
+  // And how to load the cell's corners minus the iso value in double, for the rare segment
+  // solved in double (g subtracts the iso value rounded to float, 0.97 by 2.9e-8: enough to put
+  // a near-tangent pass on the wrong side of zero): exactCorners(exactCells, exactCell, exactIso, g).
   bool hasExact = false;
   Vec3<double> exactA, exactB;
-  double exactG[8];
+  void (*exactCorners)(const void* cells, const Vec3i& cell, double iso, double g[8]) = nullptr;
+  const void* exactCells = nullptr;
+  Vec3i exactCell;
+  double exactIso = 0;
   Real doubt = Real(32) * std::numeric_limits<Real>::epsilon();
 };
 

@@ -54,7 +54,10 @@ namespace detail {
 
 bool firstInDouble(const CellSegment<float>& seg, Root<float>& root) {
   CellSegment<double> wide;
-  for (int i = 0; i < 8; ++i) wide.g[i] = seg.hasExact ? seg.exactG[i] : double(seg.g[i]);
+  if (seg.hasExact)
+    seg.exactCorners(seg.exactCells, seg.exactCell, seg.exactIso, wide.g);
+  else
+    for (int i = 0; i < 8; ++i) wide.g[i] = seg.g[i];
   wide.a = seg.hasExact ? seg.exactA : Vec3d(seg.a);
   wide.b = seg.hasExact ? seg.exactB : Vec3d(seg.b);
   wide.f0 = seg.f0;

@@ -353,8 +353,9 @@ class CellWalk {
       // the one behind compares the given class with that face's, ahead of the origin.)
       for (int a = 0; a < 3; ++a) {
         const double p = m_exact->org[a] + m_exact->tnear * m_exact->dir[a], d = m_exact->dir[a];
-        if ((p < double(lo[a]) && lo[a] > 0 && !(d > 0)) || (p > double(hi[a]) && hi[a] < m_cells->dims[a] - 1 && !(d < 0)))
-          return false;
+        const bool pastLoSeam = p < double(lo[a]) && lo[a] > 0 && !(d > 0);
+        const bool pastHiSeam = p > double(hi[a]) && hi[a] < m_cells->dims[a] - 1 && !(d < 0);
+        if (pastLoSeam || pastHiSeam) return false;
       }
     }
     if (m_startCell) {
@@ -624,7 +625,12 @@ class CellWalk {
       return p;
     };
     seg.hasExact = true;
-    m_cells->load(m_cell, e.iso, seg.exactG);
+    seg.exactCorners = [](const void* cells, const Vec3i& cell, double iso, double g[8]) {
+      static_cast<const Cells*>(cells)->load(cell, iso, g);
+    };
+    seg.exactCells = m_cells;
+    seg.exactCell = m_cell;
+    seg.exactIso = e.iso;
     seg.exactA = point(enterAxis, m_ta, enterAxis >= 0 ? seg.a[enterAxis] : Real(0));
     seg.exactB = point(leaveAxis, m_tb, leaveAxis >= 0 ? seg.b[leaveAxis] : Real(0));
     Real extent = 0;
