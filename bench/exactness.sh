@@ -6,7 +6,8 @@
 # self hits, inside escapes, shadow mismatches, and crossings lost and extra per 1e7 reference
 # crossings (per ray: the reference's crossings the walk did not find, the walk's it has not).
 # Every failing ray is dumped (OUT_DIR/*.failures.txt) to replay with `isotrace watertight
-# SCENE --replay FILE`.
+# SCENE --replay FILE`, and so is every parity ray whose crossings differ from the reference's
+# count on its line (`--dump-lost`: the lost and extra pairs, to trace without running again).
 #
 # Options: --rough-rays N (default 100000000 per surface), --real-rays N (default 10000000),
 #          --seeds "1 2 3" (rough fields), --intersector NAME (default isolation; `reference`
@@ -58,7 +59,7 @@ run() {  # NAME SCENE RAYS OFFSET
   if [ $resume = 1 ] && [ -s "$out/$name.json" ]; then echo "exactness: $name: kept from before" >&2; return 0; fi
   echo "exactness: $name: $rays rays per surface, offset $offset ..." >&2
   "$isotrace" watertight "$scene" --rays "$rays" --intersector "$intersector" --ray-flow "$rayFlow" --offset "$offset" --threads "$threads" \
-    --json "$out/$name.json" --dump "$out/$name.failures.txt" > "$out/$name.txt"
+    --json "$out/$name.json" --dump "$out/$name.failures.txt" --dump-lost > "$out/$name.txt"
 }
 for seed in $seeds; do
   # The rough fields are placed at 1e5 by their own origin.
