@@ -156,10 +156,10 @@ class SurfaceChecker {
   // a spawned ray that lies outside the box is first moved onto it, as World does
   // (World::startInsideVolume): a chain of rays that left the box in a spawn offset ends there.
   bool exitPoint(const Ray& ray, bool spawned, Vec3d& exit) const {
-    const Vec3d world = ray.origin();
+    const Vec3d world = spawned ? m_world.startInsideVolume(ray).origin() : ray.origin();
     Vec3d o = toGrid(world);
     const Vec3d d = toGrid(world + Vec3d(ray.dir)) - o;
-    if (spawned)
+    if (spawned)  // (rounding of the transform to grid coordinates)
       for (int a = 0; a < 3; ++a) o[a] = std::clamp(o[a], 0.0, m_hi[a]);
     double t0, t1;
     if (clipToBox(o, d, m_hi, t0, t1) && t1 >= 0) {

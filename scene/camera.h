@@ -20,6 +20,10 @@ struct Ray {
   int fromSurface = -1;
   bool fromInside = false;
   bool fromCap = false;  // it leaves a cap of that surface (its origin is on the clip region's boundary)
+  // How far and which way the spawn offset moved the origin from its hit (origin() minus the
+  // hit's position, in double; zero if not spawned from an iso-surface). An origin the offset
+  // pushed out of the volume's box moves back along it, towards the hit (World::startInsideVolume).
+  Vec3d fromOffset{0, 0, 0};
   // What the ray meets: every geometry, or only World::kVolumeMask (the iso-surfaces: a
   // data-parallel rank answering another rank's ray, whose meshes that rank traces itself).
   unsigned mask = ~0u;

@@ -893,8 +893,14 @@ bool World::crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& sta
 
 // A ray leaving an iso-surface hit near its volume's box can start just outside the box (the
 // spawn offset points out of it). Its start class applies where it meets the field, so its
-// origin moves back onto the box, by at most that offset; Embree then traces the same line as
-// the iso-surface queries (IsoSurface moves what rounding leaves outside).
+// origin moves back onto the box: to where the line of the offset (through the hit and the
+// origin: the incoming ray, on which the crossing and its class were decided), followed from
+// the hit towards the origin, leaves the box. The crossing lies in the box, so that point is
+// on the side of it the ray's class names, even where rounding put the hit itself outside.
+// Moving each coordinate onto the box alone would step sideways off that line, and where the
+// surface meets the box face within that step, onto its other side: an extra pair of hits at
+// the box face (11 in 3e8 rays on a rough field). Embree then traces the same line as the
+// iso-surface queries (IsoSurface moves what rounding leaves outside).
 Ray World::startInsideVolume(const Ray& ray) const {
   if (ray.fromSurface < 0) return ray;
   const SurfaceInfo& info = m_surfaces[ray.fromSurface];
@@ -904,14 +910,30 @@ Ray World::startInsideVolume(const Ray& ray) const {
   const Vec3d o = info.surface->objectOrigin(world);
   const Vec3d lo = grid.origin();
   const Vec3d hi = lo + Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
-  const Vec3d c{std::clamp(o.x, lo.x, hi.x), std::clamp(o.y, lo.y, hi.y), std::clamp(o.z, lo.z, hi.z)};
+  auto clampToBox = [&](const Vec3d& p) {
+    return Vec3d{std::clamp(p.x, lo.x, hi.x), std::clamp(p.y, lo.y, hi.y), std::clamp(p.z, lo.z, hi.z)};
+  };
+  Vec3d c = clampToBox(o);
   if (c == o || !isFinite(o)) return ray;
+  // The line from + s (o - from): where it is in the box, s in [enter, leave].
+  const Vec3d from = info.surface->objectOrigin(world - ray.fromOffset);  // the hit
+  double enter = -std::numeric_limits<double>::infinity(), leave = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    const double step = o[a] - from[a];
+    if (step == 0) {
+      if (from[a] < lo[a] || from[a] > hi[a]) enter = std::numeric_limits<double>::infinity();
+      continue;
+    }
+    const double s0 = (lo[a] - from[a]) / step, s1 = (hi[a] - from[a]) / step;
+    enter = std::max(enter, std::min(s0, s1));
+    leave = std::min(leave, std::max(s0, s1));
+  }
+  if (enter <= leave && leave < 1 && isFinite(from)) c = clampToBox(from + (o - from) * leave);  // clamp: rounding only
   Ray moved = ray;
   moved.org64 = volume.transform.isIdentity() ? c : volume.transform.point(c);
   moved.org = Vec3f(*moved.org64);
   return moved;
 }
-
 
 bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   if (ray.fromSurface < 0) return trace(ray, hit, stats);
@@ -1310,6 +1332,7 @@ Ray leaving(const Hit& hit, const Vec3f& w) {
   r.tnear = 0;
   if (hit.surface >= 0) {
     r.org64 = o;
+    r.fromOffset = o - hit.position64;
     r.fromSurface = hit.surface;
     r.fromCap = hit.cap;
     r.fromInside = goesThrough(hit, w) ? hit.insideAfter : !hit.insideAfter;

@@ -167,6 +167,9 @@ class World {
   const std::vector<std::string>& warnings() const { return m_warnings; }
   double loadSeconds() const { return m_loadSeconds; }
   double buildSeconds() const { return m_buildSeconds; }
+  // The ray as its queries trace it: a ray spawned from an iso-surface hit whose origin the
+  // offset pushed out of that volume's box starts back on the box (world.cpp says where).
+  Ray startInsideVolume(const Ray& ray) const;
 
  private:
   struct GeometryRecord {
@@ -218,7 +221,6 @@ class World {
   void fillIsoHit(const Ray& ray, int surface, double t, float tError, Vec3d normal, bool insideAfter, bool cap,
                   const Transform* toWorld, Hit& hit) const;
   bool crossesAtInactiveStart(const Ray& ray, Hit* hit, TraversalStats& stats) const;
-  Ray startInsideVolume(const Ray& ray) const;
   bool trace(const Ray& ray, Hit& hit, TraversalStats& stats) const;  // intersect() through Embree
   bool traceShadow(const Ray& ray, TraversalStats& stats) const;      // occluded() through Embree
 

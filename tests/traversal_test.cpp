@@ -314,6 +314,34 @@ TEST(StartClass, AnOriginJustOutsideTheBoxStartsOnIt) {
   }
 }
 
+// A spawned origin the offset pushed out of the box moves back along the offset's line, to
+// where that line leaves the box: on the line (where the crossing's class was decided), not
+// coordinate by coordinate onto the face (sideways off it). Also when rounding put the hit
+// itself just outside the face.
+TEST(StartClass, AnOriginPushedOutOfTheBoxReturnsAlongItsOffset) {
+  const SphereWorld sphere;
+  const World& world = sphere.world;
+  const Grid& grid = sphere.grid;
+  const Vec3d hi = grid.origin() + Vec3d(grid.dims() - Vec3i{1, 1, 1}) * grid.spacing();
+  const Vec3d along = normalize(Vec3d{1, 0.4, -0.3});  // leaves the box through the face x = hi.x
+  for (double hitInside : {1e-6, -1e-7}) {
+    const Vec3d hitPoint{hi.x - hitInside * grid.spacing().x, 0.2 * hi.y, 0.6 * hi.z};
+    const Vec3d offset = along * (4e-5 * grid.spacing().x);
+    Ray ray;
+    ray.org64 = hitPoint + offset;
+    ray.org = Vec3f(*ray.org64);
+    ray.dir = Vec3f(along);
+    ray.fromSurface = 0;
+    ray.fromOffset = offset;
+    const Vec3d moved = world.startInsideVolume(ray).origin();
+    EXPECT_EQ(moved.x, hi.x) << hitInside;  // on the face
+    const Vec3d fromHit = moved - hitPoint;  // and on the line: no step across it
+    EXPECT_LT(length(fromHit - along * dot(fromHit, along)), 1e-12 * length(hi)) << hitInside;
+    // Coordinate by coordinate it would have kept y and z: off the line by about the offset.
+    EXPECT_GT(std::fabs(moved.y - ray.org64->y), 0.1 * std::fabs(offset.y)) << hitInside;
+  }
+}
+
 // A ray that starts inside the box starts in the cell of its exact origin, not of its float one.
 // The field is z - 86.999999 (the surface 1e-6 below the face z = 87); the origin lies 2.2e-6
 // below the face, outside, and heads down and away. In float its z rounds onto the face (float's

@@ -164,6 +164,7 @@ TEST(WatertightDump, TheHuntedFailuresPass) {
                                             {"rough_1", "rough_1_iso", 1},
                                             {"rough_2", "rough_2", 8},
                                             {"rough_2", "rough_2_5b406aa", 2},
+                                            {"rough_2", "rough_2_box_faces", 11},
                                             {"rough_3", "rough_3", 2},
                                             {"real_volumes", "real_example4d", 1},
                                             {"real_volumes", "real_hydrogen_1e5", 1},
