@@ -36,21 +36,10 @@ void WatertightCounts::add(const WatertightCounts& o) {
 
 namespace {
 
-// The parameter range where the line o + t d lies in the box [0, hi]; false if it misses.
+// The parameter range where the line o + t d lies in the box [0, hi]; false if it misses or
+// only touches it.
 bool clipToBox(const Vec3d& o, const Vec3d& d, const Vec3d& hi, double& t0, double& t1) {
-  t0 = -1e300;
-  t1 = 1e300;
-  for (int a = 0; a < 3; ++a) {
-    if (d[a] == 0) {
-      if (o[a] < 0 || o[a] > hi[a]) return false;
-      continue;
-    }
-    double ta = (0 - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
-  }
-  return t0 < t1;
+  return lineInBox(o, d, Vec3d{0, 0, 0}, hi, t0, t1) && t0 < t1;
 }
 
 class SurfaceChecker {

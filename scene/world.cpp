@@ -917,18 +917,9 @@ Ray World::startInsideVolume(const Ray& ray) const {
   if (c == o || !isFinite(o)) return ray;
   // The line from + s (o - from): where it is in the box, s in [enter, leave].
   const Vec3d from = info.surface->objectOrigin(world - ray.fromOffset);  // the hit
-  double enter = -std::numeric_limits<double>::infinity(), leave = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    const double step = o[a] - from[a];
-    if (step == 0) {
-      if (from[a] < lo[a] || from[a] > hi[a]) enter = std::numeric_limits<double>::infinity();
-      continue;
-    }
-    const double s0 = (lo[a] - from[a]) / step, s1 = (hi[a] - from[a]) / step;
-    enter = std::max(enter, std::min(s0, s1));
-    leave = std::min(leave, std::max(s0, s1));
-  }
-  if (enter <= leave && leave < 1 && isFinite(from)) c = clampToBox(from + (o - from) * leave);  // clamp: rounding only
+  double enter, leave;
+  if (isFinite(from) && lineInBox(from, o - from, lo, hi, enter, leave) && leave < 1)
+    c = clampToBox(from + (o - from) * leave);  // the clamp: rounding only
   Ray moved = ray;
   moved.org64 = volume.transform.isIdentity() ? c : volume.transform.point(c);
   moved.org = Vec3f(*moved.org64);

@@ -52,4 +52,21 @@ using Vec3f = Vec3<float>;
 using Vec3d = Vec3<double>;
 using Vec3i = Vec3<int>;
 
+// Where the line o + t d lies in the box [lo, hi] (slabs): t in [t0, t1]; false if it misses
+// (a line parallel to a face, outside its slab, misses).
+inline bool lineInBox(const Vec3d& o, const Vec3d& d, const Vec3d& lo, const Vec3d& hi, double& t0, double& t1) {
+  t0 = -INFINITY;
+  t1 = INFINITY;
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0) {
+      if (o[a] < lo[a] || o[a] > hi[a]) return false;
+      continue;
+    }
+    const double ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+    t0 = std::max(t0, std::min(ta, tb));
+    t1 = std::min(t1, std::max(ta, tb));
+  }
+  return t0 <= t1;
+}
+
 }  // namespace iso
