@@ -11,8 +11,10 @@ if [ "${1:-}" = "--sanitize" ]; then
   export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1"
   export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0"
   export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
-  ctest --test-dir build-sanitize --output-on-failure -j2 --timeout 900
+  ctest --test-dir build-sanitize --output-on-failure -j2 --timeout 900 </dev/null
   exit
 fi
 ./scripts/setup.sh
-ctest --test-dir build --output-on-failure -j2
+# --timeout: a safety net, not a timing assumption (the slowest test takes about 80 s): a test
+# that hangs fails by name after 15 minutes instead of holding the run. No test reads stdin.
+ctest --test-dir build --output-on-failure -j2 --timeout 900 </dev/null

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -129,8 +130,14 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   Material fallback;
   fallback.name = "default";
   m_materials.push_back(fallback);
-  m_device = rtcNewDevice(nullptr);
-  if (!m_device) throw std::runtime_error("cannot create the Embree device");
+  // ISOTRACE_EMBREE_CONFIG (e.g. "isa=avx2"): Embree's device configuration, to run the kernels
+  // another CPU would pick (Embree chooses by the CPU it runs on); unset, Embree's defaults.
+  const char* embreeConfig = std::getenv("ISOTRACE_EMBREE_CONFIG");
+  m_device = rtcNewDevice(embreeConfig);
+  if (!m_device)
+    throw std::runtime_error(std::string("cannot create the Embree device") +
+                             (embreeConfig ? std::string(" (ISOTRACE_EMBREE_CONFIG=") + embreeConfig + ")" : ""));
+  m_nativePackets = rtcGetDeviceProperty(m_device, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED) != 0;
   m_scene = rtcNewScene(m_device);
   rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
   try {
@@ -974,6 +981,10 @@ bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalSta
 }
 
 void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const {
+  if (!m_nativePackets) {
+    for (int i = 0; i < n; ++i) found[i] = intersect(rays[i], hits[i], stats);
+    return;
+  }
   PacketLanes p;
   alignas(32) RTCRayHit8 packet;
   for (int i = 0; i < kPacket; ++i) {
@@ -992,6 +1003,10 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
 }
 
 void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const {
+  if (!m_nativePackets) {
+    for (int i = 0; i < n; ++i) blocked[i] = occluded(rays[i], stats);
+    return;
+  }
   PacketLanes p;
   alignas(32) RTCRay8 packet;
   if (!packRays(rays, n, nullptr, blocked, stats, p, packet)) return;

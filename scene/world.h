@@ -117,7 +117,9 @@ class World {
   // Up to kPacket rays traced together (Embree's 8-wide packets, rtcIntersect8 / rtcOccluded8):
   // found[i] and hits[i] (blocked[i]) are what intersect() (occluded()) gives for rays[i] alone,
   // bit for bit (tests/world_test.cpp: Packets.*). Coherent rays (a camera's 4x2 pixels, rays
-  // towards one light) share the BVH traversal.
+  // towards one light) share the BVH traversal. Where Embree has no native 8-wide packets (a
+  // CPU without AVX: it would split them, and the iso-surfaces' lanes would not follow), each
+  // ray is traced alone, with the same results.
   static constexpr int kPacket = 8;
   void intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, TraversalStats& stats) const;
   void occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats& stats) const;
@@ -225,6 +227,7 @@ class World {
   bool traceShadow(const Ray& ray, TraversalStats& stats) const;      // occluded() through Embree
 
   RTCDevice m_device = nullptr;
+  bool m_nativePackets = true;  // Embree traces 8-wide packets natively (intersectPacket)
   RTCScene m_scene = nullptr;
   std::vector<RTCScene> m_subScenes;
   CameraDesc m_camera, m_unframedCamera;

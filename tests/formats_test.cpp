@@ -11,7 +11,17 @@
 #include <openvdb/tools/LevelSetSphere.h>
 #include <zlib.h>
 
+#include <signal.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
 #include <filesystem>
 
 #include <cstring>
@@ -438,6 +448,63 @@ TEST(VdbFiles, SmokeIsReadAndPlacedByItsTransform) {
       for (int r = 0; r < 3; ++r) EXPECT_NEAR(p[r], want[r], 1e-9);
     }
   }
+}
+
+// OpenVDB reads in a forked child (volume/isolated.cpp). fork() copies TBB's scheduler and
+// allocator state but not its worker threads: a parallel algorithm in the child could wait for
+// ever for a worker that is not there, or for a lock a parent thread held at the fork (it did, in
+// CI: Packets.PacketWalk... hung loading smoke.vdb right after a parallel surface build). The child
+// enters no TBB (OpenVDB's serial calls, an unregistered accessor, the grid never freed). Here the
+// parent's TBB workers are kept busy stealing small tasks while the file is read again and again,
+// so that forks land at every moment of their work (before the fix: a hang in 2 of 4 runs).
+TEST(VdbFiles, ReadsWhileTheParentsTbbWorkersRun) {
+  const std::string file = test::dataPath("volumes/smoke.vdb");
+  const Vec3i dims[2] = {loadVdb(file, "", false).grid.dims(), loadVdb(file, "", true).grid.dims()};
+  std::atomic<bool> stop{false};
+  std::thread busy([&] {
+    std::atomic<uint64_t> sink{0};
+    while (!stop)
+      tbb::parallel_for(tbb::blocked_range<int>(0, 256, 1), [&](const tbb::blocked_range<int>& r) {
+        uint64_t x = uint64_t(r.begin());
+        for (int i = 0; i < 2000; ++i) x = x * 6364136223846793005ull + 1442695040888963407ull;
+        sink += x & 1;
+      });
+  });
+  // A safety net, not a timing assumption: a reader child still there after 300 s is killed, so
+  // that its read fails and the test reports it instead of hanging.
+  std::mutex m;
+  std::condition_variable finished;
+  bool done = false;
+  std::thread watchdog([&] {
+    std::unique_lock<std::mutex> lock(m);
+    if (finished.wait_for(lock, std::chrono::seconds(300), [&] { return done; })) return;
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator("/proc", ec)) {
+      std::ifstream stat(entry.path() / "stat");
+      long pid = 0, parent = 0;
+      std::string name, state;
+      if (stat >> pid >> name >> state >> parent && parent == long(getpid())) kill(pid_t(pid), SIGKILL);
+    }
+  });
+  int failed = 0;
+  for (int i = 0; i < 200 && failed == 0; ++i) {
+    try {
+      const VolumeFile again = loadVdb(file, "", i % 2 == 1);
+      failed += !(again.grid.dims() == dims[i % 2]);
+      EXPECT_EQ(again.grid.dims(), dims[i % 2]) << "load " << i;
+    } catch (const InputError& e) {
+      ADD_FAILURE() << "load " << i << ": " << e.what();
+      ++failed;
+    }
+  }
+  {
+    std::lock_guard<std::mutex> lock(m);
+    done = true;
+  }
+  finished.notify_one();
+  watchdog.join();
+  stop = true;
+  busy.join();
 }
 
 // The sparse grid's traversal against a dense copy of the same samples: the same crossings,

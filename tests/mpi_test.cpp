@@ -36,7 +36,7 @@ std::string mpirun(int ranks) {
   // --foreground: a signal to timeout goes to mpirun alone. Without it timeout sends it to
   // mpirun and then to its whole process group again, and a second SIGINT makes mpirun kill
   // the ranks at once (no image: an intermittent failure of the interrupt test below).
-  return env + "timeout --foreground 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe --mca btl_vader_single_copy_mechanism none -np " +
+  return env + "timeout --foreground -k 10 120 " + std::string(ISOTRACE_MPIEXEC) + " --allow-run-as-root --oversubscribe --mca btl_vader_single_copy_mechanism none -np " +
          std::to_string(ranks) + " ";
 }
 

@@ -48,6 +48,10 @@ Process::Process(const std::string& command) {
   if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("pipe failed");
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
+  // stdin empty, stdout to /dev/null unless the command sends it elsewhere: a child left running
+  // (an MPI rank) must not hold ctest's output pipe open, or ctest waits for it.
+  posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
   posix_spawn_file_actions_adddup2(&actions, fds[1], 2);
   posix_spawnattr_t attr;
   posix_spawnattr_init(&attr);
@@ -173,12 +177,18 @@ CommandResult runCommand(const std::string& command) {
   fs::create_directories(dir);
   const std::string stem = (dir / (std::string(info->test_suite_name()) + "." + info->name())).string();
   const std::string out = stem + ".out", err = stem + ".err";
-  const std::string cmd = command + " >" + out + " 2>" + err;
+  // A safety net against a hang, not a timing assumption: a command still running after 10
+  // minutes is stopped (status 124, said in err) so that the test fails by name instead of
+  // holding the whole suite; stdin is empty, as under CI.
+  std::string quoted;
+  for (char c : command) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  const std::string cmd = "timeout -k 10 600 /bin/sh -c '" + quoted + "' </dev/null >" + out + " 2>" + err;
   const int raw = std::system(cmd.c_str());
   CommandResult r;
   r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
   r.out = slurp(out);
   r.err = slurp(err);
+  if (r.status == 124) r.err += "(test_util: stopped after 600 s: " + command + ")\n";
   return r;
 }
 

@@ -22,15 +22,16 @@ struct CommandResult {
 
 // Runs `isotrace <args>` through the shell, capturing stdout and stderr.
 CommandResult runIsotrace(const std::string& args);
-// Runs a shell command line, capturing stdout and stderr.
+// Runs a shell command line, capturing stdout and stderr (stdin empty; stopped after 10 minutes,
+// status 124, a safety net against a hang).
 CommandResult runCommand(const std::string& command);
 
 // A process the test talks to while it runs: a shell command line, started with SIGINT and
 // SIGTERM at their default actions and none blocked (as from a terminal, not as a job that a
 // non-interactive shell starts with `&`, which begins with SIGINT ignored). Its stderr comes to
 // the test through a pipe, so the test can wait for what the process says (an event, never a
-// time); stdout goes wherever the command line sends it. The destructor kills and reaps a
-// process still running.
+// time); stdin is empty and stdout goes to /dev/null unless the command line sends it elsewhere.
+// The destructor kills and reaps a process still running.
 class Process {
  public:
   explicit Process(const std::string& command);

@@ -6,7 +6,21 @@
 #include <limits>
 #include <stdexcept>
 
+#include "volume/loaders.h"
+
 namespace iso {
+namespace {
+
+// tbb::parallel_for, or a plain loop in a reader child, which must not enter TBB (loaders.h).
+template <typename Index, typename Body>
+void forEach(Index begin, Index end, const Body& body) {
+  if (inReaderChild())
+    for (Index i = begin; i < end; ++i) body(i);
+  else
+    tbb::parallel_for(begin, end, body);
+}
+
+}  // namespace
 
 BrickGrid::BrickGrid(Vec3i d) {
   m_cellDims = {d.x - 1, d.y - 1, d.z - 1};
@@ -19,7 +33,7 @@ BrickGrid::BrickGrid(Vec3i d) {
 
 void BrickGrid::rangesOfRow(int bz, const float* samples, int count) {
   const size_t nx = size_t(m_cellDims.x) + 1, layer = nx * (size_t(m_cellDims.y) + 1);
-  tbb::parallel_for(0, m_count.y, [&](int by) {
+  forEach(0, m_count.y, [&](int by) {
     for (int bx = 0; bx < m_count.x; ++bx) {
       const uint32_t b = uint32_t((size_t(bz) * m_count.y + by) * m_count.x + bx);
       const Vec3i c0 = cellBegin(b), c1 = cellEnd(b);
@@ -61,7 +75,7 @@ BrickGrid::BrickGrid(const Grid& grid) : BrickGrid(grid.dims()) {
   // registers (one pass over the samples that scattered each into its bricks took 0.8 s for 512^3).
   if (const SparseSamples* sparse = grid.sparse()) {
     // The bricks are the sparse grid's own: a block's range, or its one value.
-    tbb::parallel_for(size_t(0), n, [&](size_t b) {
+    forEach(size_t(0), n, [&](size_t b) {
       if (!grid.holdsCells(cellBegin(uint32_t(b)), cellEnd(uint32_t(b)))) return;  // (a window's: not held, never active)
       const int32_t slot = sparse->slot[b];
       if (slot < 0) {
@@ -76,7 +90,7 @@ BrickGrid::BrickGrid(const Grid& grid) : BrickGrid(grid.dims()) {
   } else {
   grid.visitSamples([&](const auto* data) {
     // Slabs of bricks in parallel, each writing only its own bricks.
-    tbb::parallel_for(0, m_count.z, [&](int bz) {
+    forEach(0, m_count.z, [&](int bz) {
       for (int by = 0; by < m_count.y; ++by)
         for (int bx = 0; bx < m_count.x; ++bx) {
           const uint32_t b = uint32_t((size_t(bz) * m_count.y + by) * m_count.x + bx);

@@ -5,7 +5,8 @@
 // abort(), a crash or an out-of-memory there would take isotrace down with it, so such a
 // library reads in a child: the child hands back the samples through a memfd (the parent maps
 // them: no copy) and the rest (geometry, notes, or the InputError) through a pipe; if it dies,
-// the parent reports the file as malformed, in one line.
+// the parent reports the file as malformed, in one line. The child enters no TBB (OpenVDB's
+// serial calls, BrickGrid's serial build): fork() does not copy TBB's worker threads.
 #include <fcntl.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
@@ -61,8 +62,11 @@ bool writeAll(int fd, const void* data, size_t size, off_t* at = nullptr) {
   return true;
 }
 
+bool g_inReaderChild = false;
+
 [[noreturn]] void childMain(int bytesFd, int reportFd, const std::string& path,
                             const std::function<std::string(int)>& work) {
+  g_inReaderChild = true;  // no TBB from here on (loaders.h, inReaderChild)
   // The parent's handlers (SIGINT's, a fuzzer's) are not the child's business; a crash here
   // ends the child, which the parent reports. The library's own messages are muted.
   for (int sig : {SIGABRT, SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGINT, SIGTERM}) std::signal(sig, SIG_DFL);
@@ -126,6 +130,8 @@ std::string sendVolume(const VolumeFile& v, int fd) {
 }
 
 }  // namespace
+
+bool inReaderChild() { return g_inReaderChild; }
 
 ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int)>& work) {
   const std::string malformed = std::string(library) +

@@ -108,6 +108,10 @@ struct ChildOutput {
 ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int fd)>& work);
 // A volume's brick ranges computed in a child process (`ranges` runs there), for such a library.
 BrickGrid rangesInChildProcess(const std::string& path, const char* library, const std::function<BrickGrid()>& ranges);
+// True in such a child. fork() copies TBB's scheduler state but not its worker threads, so a
+// parallel loop there can wait for ever for a worker that is not there (a load hung so in CI):
+// the child runs no TBB, and code it calls (BrickGrid's build) loops serially when this is true.
+bool inReaderChild();
 
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
 std::string describeAffine(const double a[3][4]);

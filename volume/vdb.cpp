@@ -43,7 +43,7 @@ template <typename GridT>
 std::string describe(const GridT& grid) {
   return "grid '" + grid.getName() + "' (" + grid.valueType() + ", " +
          (grid.getGridClass() == openvdb::GRID_LEVEL_SET ? "level set" : "fog volume or other") + "), " +
-         std::to_string(grid.activeVoxelCount()) + " active voxels, background " + std::to_string(double(grid.background()));
+         std::to_string(openvdb::tools::countActiveVoxels(grid.tree(), /*threaded=*/false)) + " active voxels, background " + std::to_string(double(grid.background()));
 }
 
 template <typename GridT>
@@ -59,7 +59,7 @@ VolumeFile toDense(const GridT& grid, const std::string& path) {
                          std::to_string(size.z()) + ") is above 2^30 samples as a dense grid");
   std::vector<float> values(static_cast<size_t>(samples));
   openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(box, values.data());
-  openvdb::tools::copyToDense(grid, dense);
+  openvdb::tools::copyToDense(grid, dense, /*serial=*/true);
   for (size_t i = 0; i < values.size(); ++i)
     if (!std::isfinite(values[i]))
       throw InputError(path, "grid '" + grid.getName() + "'", "a value is not finite (voxel " + std::to_string(i) + " of the dense copy)");
@@ -120,7 +120,9 @@ VolumeFile toSparse(const GridT& grid, const std::string& path) {
     if (added) storage->uniform.push_back(v);
     return -1 - it->second;
   };
-  auto accessor = grid.getConstAccessor();
+  // Not registered with the tree (a registered one goes into a TBB hash map, allocated by TBB's
+  // allocator, whose locks a forked reader may hold copies of: loaders.h, inReaderChild).
+  auto accessor = grid.getConstUnsafeAccessor();
   auto base = [&](int bx, int by, int bz) { return origin + openvdb::Coord(8 * bx, 8 * by, 8 * bz); };
   // Fills a brick's block from the tree; true if its samples are not all one value.
   auto fill = [&](const openvdb::Coord& at, float* block) {
@@ -281,6 +283,10 @@ VolumeFile readVdb(const std::string& path, const std::string& gridName, bool de
     if (!chosen) throw InputError(path, "", "no float or double grid; the file holds " + (names.empty() ? "none" : names));
     const openvdb::GridBase::Ptr grid = file.readGrid(chosen->getName());
     file.close();
+    // Never freed: OpenVDB frees a tree's nodes in a tbb::parallel_for, and this runs in a reader
+    // child, which must not enter TBB (loaders.h, inReaderChild); the child's _exit frees it all.
+    new openvdb::GridPtrVecPtr(metadata);
+    new openvdb::GridBase::Ptr(grid);
     VolumeFile out;
     if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(grid))
       out = dense ? toDense(*f, path) : toSparse(*f, path);
