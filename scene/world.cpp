@@ -134,9 +134,10 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   // another CPU would pick (Embree chooses by the CPU it runs on); unset, Embree's defaults.
   const char* embreeConfig = std::getenv("ISOTRACE_EMBREE_CONFIG");
   m_device = rtcNewDevice(embreeConfig);
-  if (!m_device)
-    throw std::runtime_error(std::string("cannot create the Embree device") +
-                             (embreeConfig ? std::string(" (ISOTRACE_EMBREE_CONFIG=") + embreeConfig + ")" : ""));
+  if (!m_device && embreeConfig)  // (Embree ignores keys it does not know, and an unknown isa)
+    throw InputError("ISOTRACE_EMBREE_CONFIG", "", std::string("Embree refused the device configuration '") +
+                                                       embreeConfig + "'");
+  if (!m_device) throw std::runtime_error("cannot create the Embree device");
   m_nativePackets = rtcGetDeviceProperty(m_device, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED) != 0;
   m_scene = rtcNewScene(m_device);
   rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);

@@ -109,6 +109,14 @@ TEST(Cli, BadFlagsExitWithStatus2) {
   EXPECT_EQ(jpegAlpha.status, 2);
   EXPECT_NE(jpegAlpha.err.find("--alpha: JPEG has no alpha channel"), std::string::npos) << jpegAlpha.err;
   EXPECT_FALSE(fs::exists(dir + "/out.jpg"));
+  // A device configuration Embree refuses is bad input too, named with its variable.
+  const auto embree = test::runCommand("env ISOTRACE_EMBREE_CONFIG=threads=abc " + std::string(ISOTRACE_BINARY) + " render " +
+                                 path + " -o " + dir + "/e.png");
+  EXPECT_EQ(embree.status, 2) << embree.err;
+  EXPECT_NE(embree.err.find("ISOTRACE_EMBREE_CONFIG: Embree refused the device configuration 'threads=abc'"),
+            std::string::npos) << embree.err;
+  EXPECT_EQ(std::count(embree.err.begin(), embree.err.end(), '\n'), 1) << embree.err;
+  EXPECT_FALSE(fs::exists(dir + "/e.png"));
 }
 
 // --set and --iso change the scene as if its file said so: the same image as the edited file,
