@@ -86,6 +86,7 @@ python3 - "$out" "$intersector" <<'PY'
 import glob, json, os, sys
 out, intersector = sys.argv[1:3]
 real = json.load(open("bench/exactness_real.json"))["volumes"]
+per1e7 = lambda n, ref: n / ref * 1e7 if ref else 0.0
 rows = []
 lost = extra = reference = 0
 for path in sorted(glob.glob(os.path.join(out, "*.json"))):
@@ -99,9 +100,8 @@ for path in sorted(glob.glob(os.path.join(out, "*.json"))):
             what = "%s (%s)" % (os.path.basename(real[int(volume)]["file"]), "1e5" if offset == "1e5" else "origin")
         ref = s["reference_crossings"]
         lost, extra, reference = lost + s["lost_crossings"], extra + s["extra_crossings"], reference + ref
-        per = lambda n: n / ref * 1e7 if ref else 0.0
         rows.append((what, "%g" % s["iso"], s["rays"], s["parity_errors"], s["self_hits"], s["inside_escapes"],
-                     s["shadow_mismatches"], s["crossings"], ref, per(s["lost_crossings"]), per(s["extra_crossings"])))
+                     s["shadow_mismatches"], s["crossings"], ref, per1e7(s["lost_crossings"], ref), per1e7(s["extra_crossings"], ref)))
 head = ("volume", "iso", "rays", "parity", "self hits", "inside escapes", "shadow", "crossings", "reference", "lost / 1e7",
         "extra / 1e7")
 lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -109,9 +109,8 @@ for r in rows:
     lines.append("| %s | %s | %d | %d | %d | %d | %d | %d | %d | %.2f | %.2f |" % r)
 errors = sum(r[3] + r[4] + r[5] + r[6] for r in rows)
 lines.append("")
-per = lambda n: n / reference * 1e7 if reference else 0.0
 lines.append("%s: %d surfaces, %d errors of any kind; of %d reference crossings %d lost (%.2f per 1e7), %d extra (%.2f per 1e7)"
-             % (intersector, len(rows), errors, reference, lost, per(lost), extra, per(extra)))
+             % (intersector, len(rows), errors, reference, lost, per1e7(lost, reference), extra, per1e7(extra, reference)))
 text = "\n".join(lines)
 open(os.path.join(out, "table.md"), "w").write(text + "\n")
 print(text)
