@@ -43,7 +43,8 @@ struct RayCounters {
 };
 
 // What one camera sample returns: radiance, the direct part of it (compare only), and the
-// first hit's albedo, shading normal and distance for the AOV layers.
+// first hit's albedo, shading normal and distance for the AOV layers (and the denoiser; the path
+// integrators take albedo and normal through perfect mirrors and glass, see PathIntegrator).
 struct SampleResult {
   Vec3f L{0, 0, 0};
   Vec3f direct{0, 0, 0};
@@ -73,6 +74,9 @@ struct PathState {
   bool specular = true;    // the last bounce was a delta lobe (or the camera)
   Vec3f unblocked{0, 0, 0};  // what the waiting shadow ray adds to L if nothing blocks it
   bool unblockedIsDirect = false;  // ... and to `direct`
+  // The path integrator: the denoiser's features wait for the first hit that is not a perfect
+  // mirror or glass (SampleResult::albedo and normal keep the last such hit's until then).
+  bool featurePending = false;
 
   // A camera sample's fresh path: every field a stage reads before writing it is reset (the
   // wavefront flow reuses its paths from pass to pass; the rest is written before it is read).
@@ -86,6 +90,7 @@ struct PathState {
     bsdfPdf = 0;
     bounce = segment = 0;
     specular = true;
+    featurePending = false;
   }
 };
 

@@ -64,6 +64,12 @@ void PathIntegrator::sampleLight(PathState& p, const Hit& hit, const Bsdf& bsdf,
   p.shadowing = true;
 }
 
+void PathIntegrator::recordFeatures(PathState& p, const Hit& hit) const {
+  p.featurePending = false;
+  p.out.albedo = m_world.albedo(hit) * p.beta;
+  p.out.normal = hit.shading;
+}
+
 void PathIntegrator::start(PathState& p) const {
   p.ray.dir = normalize(p.ray.dir);
   p.tracing = true;
@@ -93,7 +99,10 @@ void PathIntegrator::afterTrace(PathState& p, bool found, const Hit& hit, RayCou
     }
     return;
   }
-  if (segment == 0) recordFirstHit(ray, hit, p.out);
+  if (segment == 0) {
+    recordFirstHit(ray, hit, p.out);
+    p.featurePending = true;
+  }
   const Vec3f wo = -ray.dir;
   const Vec3f Le = m_world.emitted(hit, wo);
   if (!isBlack(Le)) {
@@ -111,8 +120,15 @@ void PathIntegrator::afterTrace(PathState& p, bool found, const Hit& hit, RayCou
   // At the last scattering event the path ends, unless a thin sheet lets it go on straight.
   const Material& material = m_world.materials()[size_t(hit.material)];
   const bool last = p.bounce == m_maxDepth;
-  if (last && !(material.thin && material.type == MaterialType::Dielectric)) return;
+  if (last && !(material.thin && material.type == MaterialType::Dielectric)) {
+    if (p.featurePending) recordFeatures(p, hit);
+    return;
+  }
   const Bsdf bsdf = m_world.bsdf(hit);
+  // The denoiser's albedo and normal: those of the first surface that is not a perfect mirror or
+  // glass, tinted by what the specular bounces before it passed (a glass skin over bone gives the
+  // bone's), so that what is seen through glass keeps its edges.
+  if (p.featurePending && (!bsdf.isDelta() || bsdf.isBlack())) recordFeatures(p, hit);
   if (bsdf.isBlack()) return;
   if (!bsdf.isDelta()) sampleLight(p, hit, bsdf, wo, counters);
   Sampler& sampler = p.sampler;

@@ -25,7 +25,8 @@ namespace iso {
 namespace {
 
 struct RenderFlags {
-  std::string scene, output, integrator, intersector, rayFlow, resolution, aov, stats, tonemap, isoSweep;
+  std::string scene, output, integrator, intersector, rayFlow, resolution, aov, stats, tonemap, isoSweep, denoise;
+  bool denoiseGiven = false;
   int spp = 0, threads = -1, maxDepth = 0, frames = 1;
   std::optional<double> orbit;
   long long seed = -1;
@@ -33,6 +34,12 @@ struct RenderFlags {
   std::optional<double> exposure, clamp, adaptive;
   SceneOverrides overrides;
 };
+
+std::string fixed2(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.2f", v);
+  return b;
+}
 
 // --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
 DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
@@ -105,6 +112,11 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
                          std::to_string(kMaxFilmPixels) + " pixels (~" +
                          std::to_string(kMaxFilmPixels * 170 >> 30) + " GiB to render); --allow-large renders it anyway");
   if (f.dataParallel) s.dataParallel = true;
+  if (f.denoiseGiven) {
+    const std::string mode = f.denoise.empty() ? "quality" : f.denoise;
+    if (!parseDenoiseMode(mode, s.denoise))
+      throw InputError("--denoise", "", "unknown mode '" + mode + "' (known: " + denoiseModeList() + ")");
+  }
   if (f.spp != 0) s.spp = f.spp;  // CLI11 checked the range; 0 is "not given"
   if (f.maxDepth != 0) s.maxDepth = f.maxDepth;
   if (f.threads >= 0) s.threads = f.threads;
@@ -196,7 +208,8 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
                "  \"spp_mean\": %.4f,\n  \"spp_max\": %d,\n  \"noise_threshold\": %s,\n  \"clamp\": %s,\n"
                "  \"interrupted\": %s,\n  \"threads\": %d,\n  \"integrator\": %s,\n  \"intersector\": %s,\n  \"ray_flow\": %s,\n"
                "  \"overrides\": %s,\n  \"max_depth\": %d,\n  \"frames\": %d,\n  \"ranks\": %d,\n  \"distribution\": \"%s\",\n%s"
-               "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"total\": %.6f},\n"
+               "  \"denoise\": %s,\n"
+               "  \"seconds\": {\"load\": %.6f, \"build\": %.6f, \"render\": %.6f, \"denoise\": %.6f, \"total\": %.6f},\n"
                "  \"rays\": {\"camera\": %llu, \"shadow\": %llu, \"indirect\": %llu, \"total\": %llu},\n"
                "  \"rays_per_second\": %.1f,\n"
                "  \"counters\": {\"Iso/CellsVisited\": %llu, \"Iso/CellsSolved\": %llu, \"Iso/RootsRefined\": %llu,\n"
@@ -205,7 +218,7 @@ std::string statsJson(const SceneDesc& scene, double loadSeconds, double buildSe
                jsonString(scene.path).c_str(), s.width, s.height, r.minSamples, s.spp, r.meanSamples, r.maxSamples,
                jsonNumber(s.noiseThreshold).c_str(), jsonNumber(s.clampIndirect).c_str(), r.interrupted ? "true" : "false",
                threads, jsonString(s.integrator).c_str(), jsonString(intersectorName(s.intersector)).c_str(),
-               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, s.dataParallel ? "data" : "image", ranksText.c_str(), loadSeconds, buildSeconds, r.seconds, totalSeconds, (unsigned long long)c.camera,
+               jsonString(rayFlowName(s.rayFlow)).c_str(), overrides.c_str(), s.maxDepth, frames, ranks, s.dataParallel ? "data" : "image", ranksText.c_str(), jsonString(denoiseModeName(r.denoised ? s.denoise : DenoiseMode::Off)).c_str(), loadSeconds, buildSeconds, r.seconds, r.denoiseSeconds, totalSeconds, (unsigned long long)c.camera,
                (unsigned long long)c.shadow, (unsigned long long)c.indirect, (unsigned long long)rays,
                r.seconds > 0 ? rays / r.seconds : 0.0, (unsigned long long)c.traversal.cellsVisited,
                (unsigned long long)c.traversal.cellsSolved, (unsigned long long)c.traversal.rootsRefined,
@@ -391,12 +404,26 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       std::fprintf(stderr, "isotrace: rendering %dx%d, %d spp, %s%s\n", s.width, s.height, s.spp, s.integrator.c_str(), which.c_str());
       std::fflush(stderr);
     }
-    const RenderResult result =
+    DenoiseInput denoiseInput;
+    const bool denoising = s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator);
+    options.denoiseInput = denoising ? &denoiseInput : nullptr;
+    RenderResult result =
         !byTiles ? renderFrame(camera, *integrator, options, film, direct.get())
         : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &figures)
                          : renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures);
     if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
-
+    // Denoised once, on the whole image (under MPI on rank 0 after the gather: the same bits as
+    // one process).
+    Film indirect(0, 0);
+    if (denoising) {
+      const DenoiseReport report = denoiseFrame(denoiseInput, s.denoise, s.threads,
+                                                imageFormatFor(output) == ImageFormat::Exr, film, direct.get(),
+                                                &indirect, result);
+      if (report.nonFinitePixels > 0 && !flags.quiet)
+        std::fprintf(stderr, "isotrace: warning: %llu pixels had samples that are not finite (NaN or infinity); "
+                     "the denoiser left them out and filled them from their neighbours\n",
+                     (unsigned long long)report.nonFinitePixels);
+    }
     std::map<std::string, std::string> metadata = {
         {"Software", "isotrace"},
         {"isotrace:spp", std::to_string(result.minSamples)},
@@ -412,6 +439,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       metadata["isotrace:spp_max"] = std::to_string(result.maxSamples);
     }
     if (s.clampIndirect > 0) metadata["isotrace:clamp"] = jsonNumber(s.clampIndirect);
+    if (result.denoised) metadata["isotrace:denoise"] = denoiseModeName(s.denoise);
     if (!scene.overrides.empty()) {  // --iso / --set, as applied: one POINTER=VALUE per line
       std::string text;
       for (const std::string& o : scene.overrides) text += (text.empty() ? "" : "\n") + o;
@@ -430,8 +458,9 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     const std::string frameOutput = seq.name(output, frame);
     std::vector<std::string> written;
     if (direct) {
-      // global = everything, direct = paths of depth 1, indirect = global - direct.
-      Film indirect = indirectOf(film, *direct);
+      // global = everything, direct = paths of depth 1, indirect = global - direct (denoised:
+      // direct and indirect apart, global their sum).
+      if (!result.denoised) indirect = indirectOf(film, *direct);
       const std::string global = withSuffix(frameOutput, "global");
       direct->alpha() = indirect.alpha() = film.alpha();
       writeImage(withSuffix(frameOutput, "direct"), *direct, false, metadata, display);
@@ -449,6 +478,8 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     std::fflush(stdout);
     total.counters.add(result.counters);
     total.seconds += result.seconds;
+    total.denoiseSeconds += result.denoiseSeconds;
+    total.denoised = total.denoised || result.denoised;
     total.minSamples = framesDone == 0 ? result.minSamples : std::min(total.minSamples, result.minSamples);
     total.maxSamples = std::max(total.maxSamples, result.maxSamples);
     total.meanSamples += result.meanSamples;  // averaged over the frames below
@@ -482,12 +513,13 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     const std::string frameSummary = seq.frames > 1 ? ", " + std::to_string(framesDone) + " frames" : "";
     const double rays = double(c.camera + c.shadow + c.indirect);
     std::fprintf(stderr,
-                 "isotrace: %dx%d%s, %s spp, %s, %s, %s flow, %d threads%s: load %.2fs, build %.2fs, render %.2fs, total %.2fs\n"
+                 "isotrace: %dx%d%s, %s spp, %s, %s, %s flow, %d threads%s: load %.2fs, build %.2fs, render %.2fs%s, total %.2fs\n"
                  "isotrace: rays: %llu camera, %llu shadow, %llu indirect; %.2f Mrays/s; "
                  "iso-surface cells visited %llu, solved %llu, roots refined %llu\n",
                  s.width, s.height, frameSummary.c_str(), sppSummary.c_str(), s.integrator.c_str(),
                  intersectorName(s.intersector).c_str(), rayFlowName(s.rayFlow), threads,
-                 job.distributed() ? (" x " + std::to_string(job.size()) + " ranks").c_str() : "", loadSeconds, buildSeconds, total.seconds, seconds,
+                 job.distributed() ? (" x " + std::to_string(job.size()) + " ranks").c_str() : "", loadSeconds, buildSeconds, total.seconds,
+                 total.denoised ? (", denoise (" + std::string(denoiseModeName(s.denoise)) + ") " + fixed2(total.denoiseSeconds) + "s").c_str() : "", seconds,
                  (unsigned long long)c.camera, (unsigned long long)c.shadow, (unsigned long long)c.indirect,
                  total.seconds > 0 ? rays / total.seconds * 1e-6 : 0.0,
                  (unsigned long long)c.traversal.cellsVisited, (unsigned long long)c.traversal.cellsSolved,
@@ -628,13 +660,20 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_flag("--colorbar", f.colorbar, "PNG/JPEG: a legend below the image for each colour map (color_by, slices): the map, its range, the field's name");
   cmd->add_flag("--alpha", f.alpha, "transparent background: an alpha channel of coverage (PNG, EXR)");
   cmd->add_option("--clamp", f.clamp, "clip each sample's indirect radiance to X (biased; 0: off, the default)");
+  CLI::Option* denoise = cmd->add_option("--denoise", f.denoise,
+                                         "denoise the image: quality (the default mode: feature regression) or fast "
+                                         "(a-trous), or off; an EXR keeps the raw image as layer \"raw\"")
+                             ->expected(0, 1);
   cmd->add_option("--adaptive", f.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");
   cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep and/or --orbit)")
       ->check(CLI::Range(1, 100000));
   cmd->add_option("--iso-sweep", f.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
   addSceneOverrides(cmd, f.overrides);
   cmd->add_option("--orbit", f.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");
-  return {cmd, [flags] { return render(*flags); }};
+  return {cmd, [flags, denoise] {
+            flags->denoiseGiven = denoise->count() > 0;
+            return render(*flags);
+          }};
 }
 
 }  // namespace iso

@@ -27,6 +27,9 @@ class Film {
   int height() const { return m_height; }
   Vec3f& at(int x, int y) { return m_pixels[size_t(y) * m_width + x]; }
   const Vec3f& at(int x, int y) const { return m_pixels[size_t(y) * m_width + x]; }
+  // The main layer, row by row.
+  std::vector<Vec3f>& pixels() { return m_pixels; }
+  const std::vector<Vec3f>& pixels() const { return m_pixels; }
   // The reference stays valid when more layers are added (a deque never moves its elements on
   // push_back; a vector did, and two AOVs wrote through a dangling reference).
   Layer& addLayer(const std::string& name, std::vector<std::string> channels) {

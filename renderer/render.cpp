@@ -287,8 +287,62 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   return result;
 }
 
+namespace {
+
+// What the denoiser reads, from the sums: per image (the beauty; with `split` also the direct
+// and indirect parts) the mean, the means of the even and of the odd samples and the variance of
+// the mean; the features' means.
+void resolveDenoiseInput(const std::vector<PixelSums>& sums, int w, int h, bool split, DenoiseInput& in) {
+  in = DenoiseInput();
+  in.width = w, in.height = h;
+  const size_t n = size_t(w) * size_t(h);
+  std::vector<NoisyImage*> images = {&in.color};
+  if (split) images = {&in.color, &in.direct, &in.indirect};
+  for (NoisyImage* image : images) {
+    image->mean.resize(n);
+    image->a.resize(n);
+    image->b.resize(n);
+    image->variance.resize(n);
+  }
+  in.albedo.resize(n);
+  in.normal.resize(n);
+  in.depth.resize(n);
+  in.samples.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    const PixelSums& p = sums[i];
+    const int all = p.samples, odd = p.samples / 2, even = all - odd;
+    auto fill = [&](NoisyImage& image, const Vec3d& sum, const Vec3d& oddSum, const Vec3d& sum2) {
+      if (all == 0) {
+        image.mean[i] = image.a[i] = image.b[i] = image.variance[i] = Vec3f(0, 0, 0);
+        return;
+      }
+      const Vec3d mean = sum / double(all);
+      image.mean[i] = Vec3f(mean);
+      image.a[i] = Vec3f((sum - oddSum) / double(even));
+      image.b[i] = odd > 0 ? Vec3f(oddSum / double(odd)) : image.a[i];
+      Vec3d variance{0, 0, 0};
+      if (all > 1)
+        for (int c = 0; c < 3; ++c) variance[c] = std::max(0.0, sum2[c] / all - mean[c] * mean[c]) / (all - 1);
+      image.variance[i] = Vec3f(variance);
+    };
+    fill(in.color, p.L, p.oddL, p.L2);
+    if (split) {
+      fill(in.direct, p.direct, p.oddDirect, p.direct2);
+      fill(in.indirect, p.L - p.direct, p.oddL - p.oddDirect, p.L2 - p.directL * 2.0 + p.direct2);
+    }
+    const double count = std::max(all, 1);
+    in.albedo[i] = Vec3f(p.albedo / count);
+    in.normal[i] = Vec3f(p.normal / count);
+    in.depth[i] = p.depthHits ? float(p.depth / p.depthHits) : INFINITY;
+    in.samples[i] = float(all);
+  }
+}
+
+}  // namespace
+
 void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& options, Film& film, Film* directFilm,
                   RenderResult& result) {
+  if (options.denoiseInput) resolveDenoiseInput(sums, film.width(), film.height(), directFilm != nullptr, *options.denoiseInput);
   const int w = film.width(), h = film.height();
   result.minSamples = options.spp;
   result.maxSamples = 0;
@@ -331,6 +385,36 @@ void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& optio
       if (options.alpha) film.alpha()[i] = float(p.depthHits / n);
       if (samples) samples->data[i] = float(p.samples);
     }
+}
+
+bool integratorDenoises(const std::string& integrator) {
+  return integrator != "normals" && integrator != "eyelight";
+}
+
+DenoiseReport denoiseFrame(const DenoiseInput& in, DenoiseMode mode, int threads, bool keepRaw, Film& film,
+                           Film* direct, Film* indirect, RenderResult& result) {
+  DenoiseReport report;
+  auto keep = [&](Film& f) {
+    if (!keepRaw) return;
+    Film::Layer& raw = f.addLayer("raw", {"R", "G", "B"});
+    for (size_t i = 0; i < f.pixels().size(); ++i)
+      for (int c = 0; c < 3; ++c) raw.data[3 * i + size_t(c)] = f.pixels()[i][c];
+  };
+  if (direct && indirect && !in.direct.empty()) {
+    if (indirect->pixels().size() != film.pixels().size()) *indirect = indirectOf(film, *direct);
+    keep(film);
+    keep(*direct);
+    keep(*indirect);
+    direct->pixels() = denoise(in, in.direct, mode, threads, &report);
+    indirect->pixels() = denoise(in, in.indirect, mode, threads, &report);
+    for (size_t i = 0; i < film.pixels().size(); ++i) film.pixels()[i] = direct->pixels()[i] + indirect->pixels()[i];
+  } else {
+    keep(film);
+    film.pixels() = denoise(in, in.color, mode, threads, &report);
+  }
+  result.denoised = true;
+  result.denoiseSeconds += report.seconds;
+  return report;
 }
 
 }  // namespace iso

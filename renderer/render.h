@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "integrators/integrator.h"
+#include "renderer/denoise.h"
 #include "renderer/film.h"
 
 namespace iso {
@@ -42,6 +43,10 @@ struct RenderOptions {
   // Coverage in Film::alpha(); samples whose camera ray hits nothing add no radiance (the
   // background is transparent, though it still lights the scene).
   bool alpha = false;
+  // If set, resolveFrame fills it with what the denoiser reads (renderer/denoise.h): the means
+  // of the even and odd samples, variances and features, for the beauty and, where the
+  // integrator splits it, the direct and indirect parts.
+  DenoiseInput* denoiseInput = nullptr;
 };
 
 struct RenderResult {
@@ -51,6 +56,8 @@ struct RenderResult {
   int minSamples = 0;  // samples in the pixel that has fewest (spp unless interrupted or adaptive)
   int maxSamples = 0;
   double meanSamples = 0;
+  bool denoised = false;      // the image went through the denoiser (settings' mode)
+  double denoiseSeconds = 0;  // its time (all frames')
 };
 
 // The main layer of `film` gets radiance; `direct` (optional, same size) the direct part for
@@ -67,6 +74,12 @@ struct PixelSums {
   int depthHits = 0;  // samples whose camera ray hit something
   int samples = 0;
   bool converged = false;  // adaptive sampling: takes no more samples
+  // For the denoiser: the odd samples' share of the sums (the even half is the rest: two
+  // independent half images), and the direct part's moments (the compare integrator's direct
+  // and indirect variances).
+  Vec3d oddL, oddDirect, oddAlbedo, oddNormal, direct2, directL;
+  double oddDepth = 0;
+  int oddDepthHits = 0;
 };
 
 // Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order).
@@ -78,12 +91,25 @@ struct PixelSums {
   const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
   p.luminance += lum;
   p.luminance2 += lum * lum;
-  p.direct += Vec3d(result.direct);
-  p.albedo += Vec3d(result.albedo);
-  p.normal += Vec3d(result.normal);
+  const Vec3d direct(result.direct), albedo(result.albedo), normal(result.normal);
+  p.direct += direct;
+  p.albedo += albedo;
+  p.normal += normal;
+  p.direct2 += direct * direct;
+  p.directL += direct * L;
   if (!background) {
     p.depth += result.depth;
     ++p.depthHits;
+  }
+  if (p.samples & 1) {
+    p.oddL += L;
+    p.oddDirect += direct;
+    p.oddAlbedo += albedo;
+    p.oddNormal += normal;
+    if (!background) {
+      p.oddDepth += result.depth;
+      ++p.oddDepthHits;
+    }
   }
   ++p.samples;
 }
@@ -134,6 +160,18 @@ class TileRenderer {
 // sample figures and `interrupted` of `result`.
 void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& options, Film& film, Film* direct,
                   RenderResult& result);
+
+// Whether the denoiser has anything to do for this integrator: not for `normals` (data, not
+// radiance) nor `eyelight` (no noise but the pixel's footprint); they pass through unchanged.
+bool integratorDenoises(const std::string& integrator);
+
+// Denoises a frame resolved with options.denoiseInput = &in (renderFrame, the MPI layers) in
+// `mode` (not Off): the main layer; for an integrator that splits the direct part, `direct` and
+// `indirect` (made from the film when empty) are denoised apart and the main layer becomes their
+// sum. `keepRaw`: each film keeps what was rendered as a layer "raw" (EXR output). Sets
+// result.denoised and adds the time to result.denoiseSeconds; returns the report.
+DenoiseReport denoiseFrame(const DenoiseInput& in, DenoiseMode mode, int threads, bool keepRaw, Film& film,
+                           Film* direct, Film* indirect, RenderResult& result);
 
 // Asks a running renderFrame to stop at the next tile boundary (async-signal-safe).
 void requestStop();

@@ -95,6 +95,14 @@ enum class RayFlow { Wavefront, Scalar };
 const char* rayFlowName(RayFlow f);
 bool parseRayFlow(const std::string& name, RayFlow& flow);
 
+// The denoiser (`--denoise`, the scene's "film": {"denoise": ...}; renderer/denoise.h):
+// `quality` (feature regression, NFOR-style), `fast` (a-trous, for previews) or `off`.
+enum class DenoiseMode { Off, Quality, Fast };
+const char* denoiseModeName(DenoiseMode mode);
+bool parseDenoiseMode(const std::string& name, DenoiseMode& mode);
+// The names parseDenoiseMode knows, for messages.
+const char* denoiseModeList();
+
 enum class LightType { Point, Spot, Directional, Environment };
 
 struct LightDesc {
@@ -144,6 +152,7 @@ struct RenderSettings {
   // this share of the mean (0: off; every pixel takes spp).
   double noiseThreshold = 0;
   RayFlow rayFlow = RayFlow::Wavefront;
+  DenoiseMode denoise = DenoiseMode::Off;
   // "distribution": "data" (--data-parallel): under MPI each rank holds only its part of each
   // volume (renderer/distributed.h); "image" (the default): every rank holds the whole scene.
   bool dataParallel = false;

@@ -324,6 +324,23 @@ bool parseRayFlow(const std::string& name, RayFlow& flow) {
   return true;
 }
 
+const char* denoiseModeName(DenoiseMode mode) {
+  switch (mode) {
+    case DenoiseMode::Quality: return "quality";
+    case DenoiseMode::Fast: return "fast";
+    case DenoiseMode::Off: break;
+  }
+  return "off";
+}
+bool parseDenoiseMode(const std::string& name, DenoiseMode& mode) {
+  if (name == "quality") mode = DenoiseMode::Quality;
+  else if (name == "fast") mode = DenoiseMode::Fast;
+  else if (name == "off") mode = DenoiseMode::Off;
+  else return false;
+  return true;
+}
+const char* denoiseModeList() { return "quality, fast, off"; }
+
 const char* integratorList() { return "normals, eyelight, ao, direct, path, compare"; }
 bool isKnownIntegrator(const std::string& name) {
   for (const char* known : {"normals", "eyelight", "ao", "direct", "path", "compare"})
@@ -641,9 +658,12 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
   if (const Json* j = r.get("camera")) parseCamera(ObjectReader(*j, "/camera", path, {"position", "look_at", "up", "fov", "gltf_camera"}), scene.camera);
   else scene.camera.frameScene = true;
   if (const Json* j = r.get("film")) {
-    ObjectReader f(*j, "/film", path, {"width", "height"});
+    ObjectReader f(*j, "/film", path, {"width", "height", "denoise"});
     scene.settings.width = f.integer("width", scene.settings.width, 1, 16384);
     scene.settings.height = f.integer("height", scene.settings.height, 1, 16384);
+    const std::string denoise = f.string("denoise", denoiseModeName(scene.settings.denoise));
+    if (!parseDenoiseMode(denoise, scene.settings.denoise))
+      f.fail("/film/denoise", "unknown denoiser mode '" + denoise + "' (known: " + denoiseModeList() + ")");
     f.finish();
   }
   if (const Json* j = r.get("integrator")) {

@@ -1,0 +1,561 @@
+#include "renderer/denoise.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+// The hot loops are written lane by lane over rows (no reductions across a loop), so that the
+// compiler vectorises them; they are compiled twice, for AVX2+FMA and for plain x86-64, and the
+// CPU picks one at load time. (Which one runs changes rounding, so images are bit-identical on
+// one machine for any thread count, not across CPUs of different kinds.)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
+#define ISO_DENOISE_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define ISO_DENOISE_CLONES
+#endif
+
+namespace iso {
+
+namespace {
+
+// e^x for x <= 0 (0 below -80), relative error below 3e-5: 2^x split into an integer part, put
+// into the exponent bits, and a polynomial for the fraction. std::exp does not vectorise here
+// (no -ffast-math: see CMakeLists.txt), and the filters' weights need a few per pixel and tap.
+inline float expNegative(float x) {
+  x = std::max(x, -80.f) * 1.44269504f;  // log2(e)
+  const int i = int(x);                   // rounds towards 0: i >= x, so f in (-1, 0]
+  const float f = x - float(i);
+  // 2^f = e^(f ln 2), Taylor to the 6th power (|f ln 2| < 0.7).
+  const float t = f * 0.69314718f;
+  const float p = 1.f + t * (1.f + t * (0.5f + t * (1.f / 6 + t * (1.f / 24 + t * (1.f / 120 + t * (1.f / 720))))));
+  float scale;
+  const int bits = (i + 127) << 23;
+  std::memcpy(&scale, &bits, sizeof scale);
+  return p * scale;
+}
+
+inline float luminance(float r, float g, float b) { return 0.2126f * r + 0.7152f * g + 0.0722f * b; }
+
+// Planar images with a border of `pad` pixels on every side (zero, and not valid), so that the
+// filters' taps never test the image's edges. Rows are `stride` floats apart.
+struct Planes {
+  int width = 0, height = 0, pad = 0, stride = 0;
+  int count = 0;
+  std::vector<float> data;
+  void init(int w, int h, int p, int n) {
+    width = w, height = h, pad = p, count = n;
+    stride = (w + 2 * p + 7) & ~7;
+    data.assign(size_t(stride) * size_t(h + 2 * p) * size_t(n), 0.f);
+  }
+  float* plane(int k) { return data.data() + size_t(k) * size_t(stride) * size_t(height + 2 * pad); }
+  const float* plane(int k) const { return data.data() + size_t(k) * size_t(stride) * size_t(height + 2 * pad); }
+  // Pixel (x, y) of the image (x, y may reach into the border).
+  size_t at(int x, int y) const { return size_t(y + pad) * size_t(stride) + size_t(x + pad); }
+};
+
+template <typename F>
+void parallelRows(int rows, F&& f) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, rows, 4), [&](const tbb::blocked_range<int>& r) {
+    for (int y = r.begin(); y < r.end(); ++y) f(y);
+  });
+}
+
+// ---- What both modes read ---------------------------------------------------------------------
+
+// Validity, features and colours in planes; non-finite pixels marked and zeroed.
+struct Prepared {
+  int width = 0, height = 0;
+  // Features: 0-2 albedo, 3-5 normal, 6 depth (over the farthest depth: background 1.25), 7 valid.
+  static constexpr int kFeatures = 7, kValid = 7;
+  Planes features;
+  uint64_t nonFinite = 0;
+};
+
+inline bool finite3(const Vec3f& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+// A pixel takes part when its colours, variance and features are finite (depth may be infinite:
+// background).
+bool pixelValid(const DenoiseInput& in, const NoisyImage& image, size_t i) {
+  return finite3(image.mean[i]) && finite3(image.a[i]) && finite3(image.b[i]) && finite3(image.variance[i]) &&
+         finite3(in.albedo[i]) && finite3(in.normal[i]) && !std::isnan(in.depth[i]) && in.depth[i] >= 0;
+}
+
+Prepared prepare(const DenoiseInput& in, const NoisyImage& image, int pad) {
+  Prepared p;
+  p.width = in.width, p.height = in.height;
+  p.features.init(in.width, in.height, pad, Prepared::kFeatures + 1);
+  float far = 0;
+  for (size_t i = 0; i < in.pixels(); ++i)
+    if (std::isfinite(in.depth[i])) far = std::max(far, in.depth[i]);
+  const float toUnit = far > 0 ? 1.f / far : 1.f;
+  uint64_t bad = 0;
+  for (int y = 0; y < in.height; ++y)
+    for (int x = 0; x < in.width; ++x) {
+      const size_t i = size_t(y) * size_t(in.width) + size_t(x), o = p.features.at(x, y);
+      if (!pixelValid(in, image, i)) {
+        ++bad;
+        continue;  // features 0, not valid
+      }
+      for (int c = 0; c < 3; ++c) {
+        p.features.plane(c)[o] = in.albedo[i][c];
+        p.features.plane(3 + c)[o] = in.normal[i][c];
+      }
+      p.features.plane(6)[o] = std::isfinite(in.depth[i]) ? in.depth[i] * toUnit : 1.25f;
+      p.features.plane(Prepared::kValid)[o] = 1;
+    }
+  p.nonFinite = bad;
+  return p;
+}
+
+// A colour (3 planes) and its per-channel variance (3 planes), padded; non-valid pixels 0.
+void colourPlanes(const Prepared& p, const std::vector<Vec3f>& colour, const std::vector<Vec3f>& variance,
+                  float varianceScale, int pad, Planes& out) {
+  out.init(p.width, p.height, pad, 6);
+  const float* valid = p.features.plane(Prepared::kValid);
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      const size_t i = size_t(y) * size_t(p.width) + size_t(x), o = out.at(x, y);
+      if (valid[p.features.at(x, y)] == 0) continue;
+      for (int c = 0; c < 3; ++c) {
+        out.plane(c)[o] = colour[i][c];
+        out.plane(3 + c)[o] = variance[i][c] * varianceScale;
+      }
+    }
+}
+
+// Where a pixel has a single sample its variance is unknown (0): it is replaced by the spread of
+// the colour over the 7x7 pixels around it (a pessimistic estimate: edges count as noise).
+void fillUnknownVariance(const Prepared& p, const std::vector<float>& samples, Planes& colour) {
+  const float* valid = p.features.plane(Prepared::kValid);
+  std::vector<float> estimate(size_t(p.width) * size_t(p.height) * 3, 0.f);
+  bool any = false;
+  for (float s : samples) any = any || s < 2;
+  if (!any) return;
+  parallelRows(p.height, [&](int y) {
+    for (int x = 0; x < p.width; ++x) {
+      if (samples[size_t(y) * size_t(p.width) + size_t(x)] >= 2) continue;
+      double s[3] = {0, 0, 0}, s2[3] = {0, 0, 0};
+      int n = 0;
+      for (int dy = -3; dy <= 3; ++dy)
+        for (int dx = -3; dx <= 3; ++dx) {
+          const int qx = x + dx, qy = y + dy;
+          if (qx < 0 || qy < 0 || qx >= p.width || qy >= p.height || valid[p.features.at(qx, qy)] == 0) continue;
+          const size_t q = colour.at(qx, qy);
+          for (int c = 0; c < 3; ++c) {
+            const double v = colour.plane(c)[q];
+            s[c] += v;
+            s2[c] += v * v;
+          }
+          ++n;
+        }
+      for (int c = 0; c < 3; ++c)
+        estimate[(size_t(y) * size_t(p.width) + size_t(x)) * 3 + size_t(c)] =
+            n > 1 ? float(std::max(0.0, s2[c] / n - (s[c] / n) * (s[c] / n))) : 0.f;
+    }
+  });
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      if (samples[size_t(y) * size_t(p.width) + size_t(x)] >= 2) continue;
+      for (int c = 0; c < 3; ++c)
+        colour.plane(3 + c)[colour.at(x, y)] = estimate[(size_t(y) * size_t(p.width) + size_t(x)) * 3 + size_t(c)];
+    }
+}
+
+// ---- Quality: cross-filtered first-order regression -------------------------------------------
+
+struct QualityParams {
+  int stride = 3;     // centres every `stride` pixels in x and y
+  int radius = 7;     // each centre fits the (2 radius + 1)^2 pixels around it
+  float k = 0.45f;    // NL-means bandwidth: larger averages more
+  float ridge = 1e-3f;  // regularisation of the slopes, relative to the weights' sum
+};
+
+constexpr int kD = 1 + Prepared::kFeatures;  // the regression's unknowns: intercept and slopes
+constexpr int kLanes = 8;
+
+// The guide the weights are measured on: the half's colour averaged over 3x3 valid pixels, and
+// the variance of that average (the half's variance, already scaled, / the count).
+void boxGuide(const Prepared& p, const Planes& half, int pad, Planes& guide) {
+  guide.init(p.width, p.height, pad, 6);
+  const float* valid = p.features.plane(Prepared::kValid);
+  parallelRows(p.height, [&](int y) {
+    for (int x = 0; x < p.width; ++x) {
+      const size_t o = guide.at(x, y);
+      if (valid[p.features.at(x, y)] == 0) continue;
+      float s[6] = {0, 0, 0, 0, 0, 0};
+      float n = 0;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const float v = valid[p.features.at(x + dx, y + dy)];
+          const size_t q = half.at(x + dx, y + dy);
+          for (int c = 0; c < 6; ++c) s[c] += v * half.plane(c)[q];
+          n += v;
+        }
+      for (int c = 0; c < 3; ++c) guide.plane(c)[o] = s[c] / n;
+      for (int c = 3; c < 6; ++c) guide.plane(c)[o] = s[c] / (n * n);
+    }
+  });
+}
+
+// The NL-means weight of pixel q seen from pixel c on the guide (Rousselle et al. 2012, with the
+// variance cancellation of NFOR's eq. 11): e^-max(0, d^2), d^2 the per-channel squared difference
+// less what the variance explains, over the variance, averaged over channels.
+struct WeightFn {
+  const float *g0, *g1, *g2, *v0, *v1, *v2;
+  float k2;
+  explicit WeightFn(const Planes& guide, float k)
+      : g0(guide.plane(0)), g1(guide.plane(1)), g2(guide.plane(2)), v0(guide.plane(3)), v1(guide.plane(4)),
+        v2(guide.plane(5)), k2(k * k) {}
+  static float term(float gc, float gq, float vc, float vq, float k2) {
+    const float d = gc - gq;
+    return (d * d - (vc + std::min(vc, vq))) / (1e-8f + k2 * (vc + vq));
+  }
+  float operator()(size_t c, size_t q) const {
+    const float d = (term(g0[c], g0[q], v0[c], v0[q], k2) + term(g1[c], g1[q], v1[c], v1[q], k2) +
+                     term(g2[c], g2[q], v2[c], v2[q], k2)) * (1.f / 3);
+    return expNegative(-std::max(d, 0.f));
+  }
+};
+
+// The model of one centre: the intercept and slopes per channel, and the features it was
+// centred on.
+struct CentreModel {
+  float beta[kD][3];
+  float f[Prepared::kFeatures];
+};
+
+// Weighted least squares at one centre: sum over the window of w (y - beta . x)^2 with x = (1,
+// features - the centre's), plus ridge * sum w * |slopes|^2. Normal equations accumulated 8 lanes
+// at a time (window columns), in a fixed order; solved by Cholesky in double.
+ISO_DENOISE_CLONES
+void fitCentre(const Prepared& p, const Planes& y, const WeightFn& weight, int cx, int cy, const QualityParams& q,
+               CentreModel& model) {
+  const Planes& F = p.features;
+  const size_t c = F.at(cx, cy);
+  float fc[Prepared::kFeatures];
+  for (int j = 0; j < Prepared::kFeatures; ++j) fc[j] = F.plane(j)[c];
+  float G[kD][kD][kLanes] = {};
+  float Rhs[kD][3][kLanes] = {};
+  const float* valid = F.plane(Prepared::kValid);
+  const int width = 2 * q.radius + 1;
+  for (int dy = -q.radius; dy <= q.radius; ++dy) {
+    for (int x0 = 0; x0 < width; x0 += kLanes) {
+      const size_t row = F.at(cx - q.radius + x0, cy + dy);
+      float w[kLanes], xs[kD][kLanes], ys[3][kLanes];
+      for (int l = 0; l < kLanes; ++l) {
+        const size_t at = row + size_t(l);
+        // Lanes past the window's width, or past the border, weigh 0 (the border is not valid).
+        const float inside = (x0 + l < width) ? valid[at] : 0.f;
+        w[l] = inside * weight(c, at);
+        xs[0][l] = 1;
+        for (int j = 0; j < Prepared::kFeatures; ++j) xs[1 + j][l] = F.plane(j)[at] - fc[j];
+        for (int ch = 0; ch < 3; ++ch) ys[ch][l] = y.plane(ch)[at];
+      }
+      for (int i = 0; i < kD; ++i) {
+        float wx[kLanes];
+        for (int l = 0; l < kLanes; ++l) wx[l] = w[l] * xs[i][l];
+        for (int j = i; j < kD; ++j)
+          for (int l = 0; l < kLanes; ++l) G[i][j][l] += wx[l] * xs[j][l];
+        for (int ch = 0; ch < 3; ++ch)
+          for (int l = 0; l < kLanes; ++l) Rhs[i][ch][l] += wx[l] * ys[ch][l];
+      }
+    }
+  }
+  double A[kD][kD], B[kD][3];
+  for (int i = 0; i < kD; ++i) {
+    for (int j = i; j < kD; ++j) {
+      double s = 0;
+      for (int l = 0; l < kLanes; ++l) s += G[i][j][l];
+      A[i][j] = A[j][i] = s;
+    }
+    for (int ch = 0; ch < 3; ++ch) {
+      double s = 0;
+      for (int l = 0; l < kLanes; ++l) s += Rhs[i][ch][l];
+      B[i][ch] = s;
+    }
+  }
+  for (int j = 0; j < Prepared::kFeatures; ++j) model.f[j] = fc[j];
+  const double total = A[0][0];
+  if (!(total > 0)) {  // nothing valid around (or all weights 0): no model, predicted as 0
+    for (auto& b : model.beta) b[0] = b[1] = b[2] = 0;
+    return;
+  }
+  for (int i = 1; i < kD; ++i) A[i][i] += q.ridge * total + 1e-12 * total;
+  // Cholesky A = L L^T in place (lower triangle); a pivot that is not positive drops that
+  // feature (its slope 0): features constant over the window make A singular.
+  double L[kD][kD] = {};
+  bool used[kD];
+  for (int i = 0; i < kD; ++i) {
+    used[i] = true;
+    for (int j = 0; j <= i; ++j) {
+      double s = A[i][j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k];
+      if (i == j) {
+        if (!(s > 1e-9 * total)) {
+          used[i] = false;
+          for (int k = 0; k < i; ++k) L[i][k] = 0;
+          L[i][i] = 1;
+        } else {
+          L[i][i] = std::sqrt(s);
+        }
+      } else {
+        L[i][j] = used[j] ? s / L[j][j] : 0;
+      }
+    }
+  }
+  for (int ch = 0; ch < 3; ++ch) {
+    double z[kD], beta[kD];
+    for (int i = 0; i < kD; ++i) {
+      double s = used[i] ? B[i][ch] : 0;
+      for (int k = 0; k < i; ++k) s -= L[i][k] * z[k];
+      z[i] = used[i] ? s / L[i][i] : 0;
+    }
+    for (int i = kD - 1; i >= 0; --i) {
+      double s = z[i];
+      for (int k = i + 1; k < kD; ++k) s -= L[k][i] * beta[k];
+      beta[i] = used[i] ? s / L[i][i] : 0;
+    }
+    for (int i = 0; i < kD; ++i) model.beta[i][ch] = float(beta[i]);
+  }
+}
+
+// One half filtered: models at the centres fitted to `half` with weights on `guide` (the other
+// half), then every pixel the weighted blend of the predictions of the centres within `stride`.
+std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Planes& guide, const QualityParams& q) {
+  const int S = q.stride;
+  const int nx = (p.width + S - 1) / S, ny = (p.height + S - 1) / S;
+  auto centreX = [&](int i) { return std::min(p.width - 1, S / 2 + i * S); };
+  auto centreY = [&](int j) { return std::min(p.height - 1, S / 2 + j * S); };
+  const WeightFn weight(guide, q.k);
+  std::vector<CentreModel> models(size_t(nx) * size_t(ny));
+  parallelRows(ny, [&](int j) {
+    for (int i = 0; i < nx; ++i) fitCentre(p, half, weight, centreX(i), centreY(j), q, models[size_t(j) * nx + i]);
+  });
+  std::vector<Vec3f> out(size_t(p.width) * size_t(p.height));
+  const Planes& F = p.features;
+  const float* valid = F.plane(Prepared::kValid);
+  parallelRows(p.height, [&](int y) {
+    const int j0 = std::max(0, (y - S - S / 2 + S - 1) / S), j1 = std::min(ny - 1, (y + S - S / 2) / S);
+    for (int x = 0; x < p.width; ++x) {
+      const int i0 = std::max(0, (x - S - S / 2 + S - 1) / S), i1 = std::min(nx - 1, (x + S - S / 2) / S);
+      const size_t at = F.at(x, y);
+      const bool ok = valid[at] != 0;
+      double sum[3] = {0, 0, 0}, wsum = 0;
+      for (int j = j0; j <= j1; ++j)
+        for (int i = i0; i <= i1; ++i) {
+          const CentreModel& m = models[size_t(j) * nx + i];
+          const size_t c = F.at(centreX(i), centreY(j));
+          if (valid[c] == 0) continue;
+          // A pixel that is not valid has no features: it takes the centres' intercepts alike.
+          const float w = ok ? weight(c, at) : 1.f;
+          for (int ch = 0; ch < 3; ++ch) {
+            float v = m.beta[0][ch];
+            if (ok)
+              for (int k = 0; k < Prepared::kFeatures; ++k) v += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
+            sum[ch] += double(w) * v;
+          }
+          wsum += w;
+        }
+      Vec3f v{0, 0, 0};
+      if (wsum > 0) v = Vec3f(float(sum[0] / wsum), float(sum[1] / wsum), float(sum[2] / wsum));
+      else if (ok) v = Vec3f(half.plane(0)[half.at(x, y)], half.plane(1)[half.at(x, y)], half.plane(2)[half.at(x, y)]);
+      out[size_t(y) * size_t(p.width) + size_t(x)] = v;
+    }
+  });
+  return out;
+}
+
+std::vector<Vec3f> denoiseQuality(const DenoiseInput& in, const NoisyImage& image, Prepared& p,
+                                  const std::vector<float>& samples) {
+  const QualityParams q;
+  const int pad = q.radius + q.stride + 2;
+  (void)pad;
+  // The halves' variance: each half has half the samples, so twice the variance of the mean.
+  Planes A, B, guideA, guideB;
+  colourPlanes(p, image.a, image.variance, 2.f, p.features.pad, A);
+  colourPlanes(p, image.b, image.variance, 2.f, p.features.pad, B);
+  fillUnknownVariance(p, samples, A);
+  fillUnknownVariance(p, samples, B);
+  boxGuide(p, A, p.features.pad, guideA);
+  boxGuide(p, B, p.features.pad, guideB);
+  const std::vector<Vec3f> fa = filterHalf(p, A, guideB, q);
+  const std::vector<Vec3f> fb = filterHalf(p, B, guideA, q);
+  std::vector<Vec3f> out(in.pixels());
+  for (size_t i = 0; i < out.size(); ++i) out[i] = (fa[i] + fb[i]) * 0.5f;
+  return out;
+}
+
+// ---- Fast: variance-guided a-trous -------------------------------------------------------------
+
+struct FastParams {
+  int iterations = 5;  // steps 1, 2, 4, 8, 16: a reach of 31 pixels
+  float sigmaLuminance = 4, sigmaDepth = 1, normalPower = 64;
+};
+
+ISO_DENOISE_CLONES
+void atrousRow(int y, int step, const Planes& src, const Planes& geo, const FastParams& fp, Planes& dst) {
+  // src planes: 0-2 irradiance, 3 luminance variance (prefiltered for the weights: 4), 5 luminance.
+  // geo planes: 0-2 unit normal, 3 has-normal, 4 depth, 5 depth gradient, 6 valid.
+  static constexpr float kKernel[3] = {0.25f, 0.5f, 0.25f};
+  const int w = src.width;
+  std::vector<float> acc(size_t(w) * 5, 0.f);
+  float *s0 = acc.data(), *s1 = s0 + w, *s2 = s1 + w, *ws = s2 + w, *vs = ws + w;
+  const size_t base = src.at(0, y);
+  const float *n0 = geo.plane(0) + base, *n1 = geo.plane(1) + base, *n2 = geo.plane(2) + base,
+              *hn = geo.plane(3) + base, *z = geo.plane(4) + base, *gz = geo.plane(5) + base;
+  const float *lum = src.plane(5) + base, *varf = src.plane(4) + base;
+  for (int dy = -1; dy <= 1; ++dy)
+    for (int dx = -1; dx <= 1; ++dx) {
+      const ptrdiff_t off = ptrdiff_t(dy * step) * src.stride + dx * step;
+      const float h = kKernel[dx + 1] * kKernel[dy + 1];
+      const float reach = float(step * (std::abs(dx) + std::abs(dy)));
+      const float *qn0 = n0 + off, *qn1 = n1 + off, *qn2 = n2 + off, *qhn = hn + off, *qz = z + off,
+                  *ql = lum + off, *qv = geo.plane(6) + base + off;
+      const float *qr = src.plane(0) + base + off, *qg = src.plane(1) + base + off, *qb = src.plane(2) + base + off,
+                  *qvar = src.plane(3) + base + off;
+      for (int x = 0; x < w; ++x) {
+        const float dl = std::fabs(lum[x] - ql[x]) / (fp.sigmaLuminance * std::sqrt(varf[x]) + 1e-6f);
+        const float dz = std::fabs(z[x] - qz[x]) / (fp.sigmaDepth * gz[x] * reach + 1e-3f);
+        float c = std::max(0.f, n0[x] * qn0[x] + n1[x] * qn1[x] + n2[x] * qn2[x]);
+        // Background (no normal) meets background alike, and nothing else.
+        c = hn[x] == 0 && qhn[x] == 0 ? 1.f : c;
+        float cn = c * c;       // c^2
+        cn = cn * cn;           // c^4
+        cn = cn * cn;           // c^8
+        cn = cn * cn;           // c^16
+        cn = cn * cn;           // c^32
+        cn = cn * cn;           // c^64
+        const float wt = h * qv[x] * cn * expNegative(-(dl + dz));
+        s0[x] += wt * qr[x];
+        s1[x] += wt * qg[x];
+        s2[x] += wt * qb[x];
+        ws[x] += wt;
+        vs[x] += wt * wt * qvar[x];
+      }
+    }
+  for (int x = 0; x < w; ++x) {
+    const size_t o = base + size_t(x);
+    const float inv = ws[x] > 0 ? 1.f / ws[x] : 0.f;
+    dst.plane(0)[o] = s0[x] * inv;
+    dst.plane(1)[o] = s1[x] * inv;
+    dst.plane(2)[o] = s2[x] * inv;
+    dst.plane(3)[o] = vs[x] * inv * inv;
+    dst.plane(5)[o] = luminance(dst.plane(0)[o], dst.plane(1)[o], dst.plane(2)[o]);
+  }
+}
+
+std::vector<Vec3f> denoiseFast(const DenoiseInput& in, const NoisyImage& image, Prepared& p,
+                               const std::vector<float>& samples) {
+  const FastParams fp;
+  const int pad = p.features.pad;
+  Planes colour;
+  colourPlanes(p, image.mean, image.variance, 1.f, pad, colour);
+  fillUnknownVariance(p, samples, colour);
+  const Planes& F = p.features;
+  const float* valid = F.plane(Prepared::kValid);
+  // The colour over the albedo (where there is one), so that texture is not blurred.
+  std::vector<Vec3f> albedo(in.pixels(), Vec3f(1, 1, 1));
+  Planes src, dst, geo;
+  src.init(p.width, p.height, pad, 6);
+  geo.init(p.width, p.height, pad, 7);
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      const size_t i = size_t(y) * size_t(p.width) + size_t(x), o = F.at(x, y);
+      if (valid[o] == 0) continue;
+      float a[3], sd = 0;
+      for (int c = 0; c < 3; ++c) {
+        const float al = F.plane(c)[o];
+        a[c] = al > 1e-3f ? al : 1.f;
+        albedo[i][c] = a[c];
+        src.plane(c)[o] = colour.plane(c)[o] / a[c];
+        sd += (c == 0 ? 0.2126f : c == 1 ? 0.7152f : 0.0722f) * std::sqrt(colour.plane(3 + c)[o]) / a[c];
+      }
+      src.plane(3)[o] = sd * sd;
+      src.plane(5)[o] = luminance(src.plane(0)[o], src.plane(1)[o], src.plane(2)[o]);
+      const float nx = F.plane(3)[o], ny = F.plane(4)[o], nz = F.plane(5)[o];
+      const float len = std::sqrt(nx * nx + ny * ny + nz * nz);
+      if (len > 1e-6f) {
+        geo.plane(0)[o] = nx / len, geo.plane(1)[o] = ny / len, geo.plane(2)[o] = nz / len;
+        geo.plane(3)[o] = 1;
+      }
+      geo.plane(4)[o] = F.plane(6)[o];
+      geo.plane(6)[o] = 1;
+    }
+  // Depth gradient per pixel (the larger central difference; one-sided at a valid edge).
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      const size_t o = F.at(x, y);
+      if (valid[o] == 0) continue;
+      const float zc = geo.plane(4)[o];
+      float g = 0;
+      for (const auto& [dx, dy] : {std::pair{1, 0}, std::pair{-1, 0}, std::pair{0, 1}, std::pair{0, -1}}) {
+        const size_t q = F.at(x + dx, y + dy);
+        if (valid[q] != 0) g = std::max(g, std::fabs(geo.plane(4)[q] - zc));
+      }
+      geo.plane(5)[o] = g;
+    }
+  dst.init(p.width, p.height, pad, 6);
+  for (int it = 0; it < fp.iterations; ++it) {
+    // The weights' variance: the current one blurred 3x3 (SVGF, section 4.4), steadier than one
+    // pixel's.
+    parallelRows(p.height, [&](int y) {
+      for (int x = 0; x < p.width; ++x) {
+        const size_t o = src.at(x, y);
+        float s = 0, n = 0;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const size_t q = src.at(x + dx, y + dy);
+            const float k = (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f) * geo.plane(6)[q];
+            s += k * src.plane(3)[q];
+            n += k;
+          }
+        src.plane(4)[o] = n > 0 ? s / n : 0;
+      }
+    });
+    const int step = 1 << it;
+    parallelRows(p.height, [&](int y) { atrousRow(y, step, src, geo, fp, dst); });
+    std::swap(src, dst);
+  }
+  std::vector<Vec3f> out(in.pixels());
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      const size_t i = size_t(y) * size_t(p.width) + size_t(x), o = src.at(x, y);
+      out[i] = Vec3f(src.plane(0)[o], src.plane(1)[o], src.plane(2)[o]) * albedo[i];
+    }
+  return out;
+}
+
+}  // namespace
+
+size_t denoiseBytesPerPixel(DenoiseMode mode) {
+  // Planes (floats): quality 8 features + 4 x 6 colour + guide, models per centre, two halves'
+  // results; fast 8 features + 6 colour + 2 x 6 + 7 + albedo.
+  return mode == DenoiseMode::Quality ? (8 + 24 + 6) * 4 + 2 * 12 + 120 : (8 + 6 + 12 + 7 + 3) * 4 + 12;
+}
+
+size_t denoiseInputBytesPerPixel(bool split) { return (split ? 3 : 1) * 4 * 12 + 2 * 12 + 4 + 4; }
+
+std::vector<Vec3f> denoise(const DenoiseInput& in, const NoisyImage& image, DenoiseMode mode, int threads,
+                           DenoiseReport* report) {
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<Vec3f> out;
+  if (mode == DenoiseMode::Off || in.pixels() == 0) return image.mean;
+  tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+  arena.execute([&] {
+    const int pad = std::max(QualityParams().radius + QualityParams().stride + 2, 1 << (FastParams().iterations - 1)) + 1;
+    Prepared p = prepare(in, image, pad);
+    std::vector<float> samples(in.pixels(), 2.f);
+    if (!in.samples.empty()) samples = in.samples;
+    out = mode == DenoiseMode::Quality ? denoiseQuality(in, image, p, samples) : denoiseFast(in, image, p, samples);
+    if (report) report->nonFinitePixels += p.nonFinite;
+  });
+  if (report) report->seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return out;
+}
+
+}  // namespace iso
