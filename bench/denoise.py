@@ -1,23 +1,32 @@
-#!/usr/bin/env python3
 """The denoiser judged by error at equal time (issue 45).
 
 For every example scene that path traces (examples/*.json but quick_look), at half the scene's
-film size: a reference of 2048 samples per pixel (rendered once, cached outside the repository
-in $ISOTRACE_CACHE or ~/.cache/isotrace/denoise, keyed on the scene file's bytes, the size,
-the spp and the seed), then renders at 4, 16, 64 and 128 spp (and 32), raw and denoised, with
-their times. Prints a table of relMSE (mean over pixels and channels of (x - ref)^2 / (ref^2 +
-1e-2)), SSIM (of the sRGB luminance after the clamp curve) and the change of the image mean,
-and writes it as JSON (--json) for docs/.
+film size: a reference of 2048 samples per pixel (rendered once with build/isotrace and cached
+outside the repository, in $ISOTRACE_CACHE or ~/.cache/isotrace/denoise, keyed on the scene
+without its spp and denoise keys, the size, the spp and the seed), then one render per sample
+count (4, 16, 64, and raw 32 and 128 for the targets) through the Python module, each raw and
+denoised in both modes from the same samples (Frame.denoised). Prints per scene and sample
+count: relMSE (mean over pixels and channels of (x - ref)^2 / (ref^2 + 0.01)), SSIM (of the
+luminance after the clamp curve and sRGB, 11x11 Gaussian windows) and the change of the image
+mean that denoising makes, with render and denoise seconds; then the issue's targets, met or
+not. --json writes every figure; --images DIR writes the PNGs (raw, quality, fast, reference);
+--timing WxH times the denoiser alone on one frame of that size (median of 5).
 
-    bench/denoise.py [--scenes a,b] [--spp 4,16,64] [--modes quality,fast] [--json FILE]
-                     [--references-only] [--threads N]
+    bench/denoise.py [--scenes a,b] [--spp 4,16,64] [--json FILE] [--images DIR]
+                     [--references-only] [--threads N] [--timing 1920x1080]
+
+Needs Debian's python3 with numpy and the module build/python (./run.sh builds it).
 """
 import argparse
 import hashlib
 import json
 import os
+import statistics
 import subprocess
 import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "build", "python"))
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ISOTRACE = os.environ.get("ISOTRACE_BINARY") or os.path.join(ROOT, "build", "isotrace")
@@ -74,17 +83,173 @@ def reference(name, threads):
     return out
 
 
+def rel_mse(x, ref):
+    return float(np.mean((x - ref) ** 2 / (ref ** 2 + 1e-2)))
+
+
+def display_luminance(x):
+    """What a PNG shows, as luminance in [0, 1]: the clamp curve, then sRGB."""
+    v = np.clip(x, 0, 1)
+    v = np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+    return 0.2126 * v[..., 0] + 0.7152 * v[..., 1] + 0.0722 * v[..., 2]
+
+
+def gaussian_blur(img, sigma=1.5, radius=5):
+    k = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    k /= k.sum()
+    pad = np.pad(img, radius, mode="reflect")
+    h, w = img.shape
+    tmp = sum(k[i] * pad[:, i:i + w] for i in range(2 * radius + 1))
+    return sum(k[i] * tmp[i:i + h, :] for i in range(2 * radius + 1))
+
+
+def ssim(x, ref):
+    """Structural similarity (Wang et al. 2004) of the displayed luminance, Gaussian windows."""
+    a, b = display_luminance(x), display_luminance(ref)
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    ma, mb = gaussian_blur(a), gaussian_blur(b)
+    va = gaussian_blur(a * a) - ma * ma
+    vb = gaussian_blur(b * b) - mb * mb
+    cov = gaussian_blur(a * b) - ma * mb
+    s = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
+    return float(np.mean(s))
+
+
+def mean_shift(x, raw):
+    """The relative change of the image mean (luminance) that denoising made."""
+    lx, lr = float(np.mean(x @ LUM)), float(np.mean(raw @ LUM))
+    return (lx - lr) / lr if lr > 0 else 0.0
+
+
+def render(name, spp, seed, threads):
+    w, h = scene_size(name)
+    return isotrace.render(os.path.join(ROOT, "examples", name + ".json"), spp=spp, seed=seed, threads=threads,
+                           resolution=(w, h), denoise="off", progress=lambda done, total: None)
+
+
+def save_png(rgb, path):
+    isotrace._core.save_image(np.ascontiguousarray(rgb, dtype=np.float32), {}, path, 0.0, "clamp", False)
+
+
+def measure_scene(name, spp_list, raw_only, threads, images):
+    ref = isotrace.read_image(reference(name, threads))[..., :3]
+    rows = []
+    for spp in sorted(set(spp_list) | set(raw_only)):
+        frame = render(name, spp, 1, threads)
+        row = {"scene": name, "spp": spp, "render_seconds": frame.stats["seconds"]["render"],
+               "raw": {"relmse": rel_mse(frame.rgb, ref), "ssim": ssim(frame.rgb, ref)}}
+        if images:
+            save_png(frame.rgb, os.path.join(images, "%s.raw%d.png" % (name, spp)))
+        if spp in spp_list:
+            for mode in ("quality", "fast"):
+                d = frame.denoised(mode, threads=threads)
+                row[mode] = {"relmse": rel_mse(d.rgb, ref), "ssim": ssim(d.rgb, ref),
+                             "mean_shift": mean_shift(d.rgb, frame.rgb), "seconds": d.stats["seconds"]["denoise"]}
+                if images:
+                    save_png(d.rgb, os.path.join(images, "%s.%s%d.png" % (name, mode, spp)))
+        rows.append(row)
+        r = row
+        line = "%-14s %5d spp  render %6.2fs  raw relMSE %.5f SSIM %.4f" % (name, spp, r["render_seconds"],
+                                                                      r["raw"]["relmse"], r["raw"]["ssim"])
+        for mode in ("quality", "fast"):
+            if mode in r:
+                m = r[mode]
+                line += "  | %s %.5f SSIM %.4f mean %+.2f%% %.3fs" % (mode, m["relmse"], m["ssim"],
+                                                                    100 * m["mean_shift"], m["seconds"])
+        print(line, flush=True)
+    if images:
+        save_png(ref, os.path.join(images, "%s.reference.png" % name))
+    return rows
+
+
+def targets(rows):
+    """The issue's targets on the measured rows: denoised (quality) 16 spp against raw 128 and 32."""
+    by = {(r["scene"], r["spp"]): r for r in rows}
+    scenes = sorted({r["scene"] for r in rows})
+    beat128 = never_worse32 = 0
+    worst_shift = 0.0
+    out = []
+    for s in scenes:
+        d16, r32, r128 = by.get((s, 16)), by.get((s, 32)), by.get((s, 128))
+        if not (d16 and r32 and r128 and "quality" in d16):
+            continue
+        q = d16["quality"]["relmse"]
+        b128, b32 = q < r128["raw"]["relmse"], q <= r32["raw"]["relmse"]
+        beat128 += b128
+        never_worse32 += b32
+        out.append((s, q, r128["raw"]["relmse"], r32["raw"]["relmse"], b128, b32))
+    for r in rows:
+        for mode in ("quality", "fast"):
+            if mode in r:
+                worst_shift = max(worst_shift, abs(r[mode]["mean_shift"]))
+    return out, beat128, never_worse32, worst_shift
+
+
+def timing(size, threads):
+    w, h = (int(v) for v in size.split("x"))
+    frame = isotrace.render(os.path.join(ROOT, "examples", "default.json"), spp=4, resolution=(w, h), threads=threads,
+                            denoise="off", progress=lambda done, total: None)
+    result = {}
+    for mode in ("quality", "fast"):
+        times = [frame.denoised(mode, threads=threads).stats["seconds"]["denoise"] for _ in range(5)]
+        result[mode] = statistics.median(times)
+        print("denoise %s %dx%d, %d threads: median %.3f s of 5 (%s)" % (
+            mode, w, h, threads, result[mode], ", ".join("%.3f" % t for t in times)), flush=True)
+    return result
+
+
+LUM = None
+np = None
+isotrace = None
+
+
 def main():
+    global np, isotrace, LUM
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenes", default="")
+    p.add_argument("--spp", default="4,16,64")
+    p.add_argument("--raw-spp", default="32,128", help="sample counts rendered raw only (the targets')")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", default="")
+    p.add_argument("--images", default="")
+    p.add_argument("--timing", default="", help="WxH: time the denoiser alone at this size")
     p.add_argument("--references-only", action="store_true")
     a = p.parse_args()
     scenes = a.scenes.split(",") if a.scenes else example_scenes()
+    if scenes == ["none"]:
+        scenes = []
     for s in scenes:
         reference(s, a.threads)
     if a.references_only:
         return
+    import numpy
+    import isotrace as module
+    np, isotrace = numpy, module
+    LUM = np.array([0.2126, 0.7152, 0.0722], dtype=np.float64)
+    report = {"machine": os.uname().nodename, "threads": a.threads, "reference_spp": REFERENCE_SPP}
+    if a.timing:
+        report["timing"] = {"size": a.timing, "seconds": timing(a.timing, a.threads)}
+    if a.images:
+        os.makedirs(a.images, exist_ok=True)
+    rows = []
+    spp = [int(v) for v in a.spp.split(",") if v]
+    raw = [int(v) for v in a.raw_spp.split(",") if v]
+    for s in scenes:
+        rows += measure_scene(s, spp, raw, a.threads, a.images)
+    report["rows"] = rows
+    t, beat128, worse32, shift = targets(rows)
+    if t:
+        print("\ntargets (quality 16 spp against raw 128 and raw 32 spp, relMSE):")
+        for s, q, r128, r32, b128, b32 in t:
+            print("  %-14s %.5f vs %.5f (128: %s)  vs %.5f (32: %s)" % (s, q, r128, "lower" if b128 else "HIGHER",
+                                                                     r32, "ok" if b32 else "WORSE"))
+        print("  beats raw 128 spp on %d of %d scenes; never worse than raw 32: %s; largest mean shift %.2f%%"
+              % (beat128, len(t), "yes" if worse32 == len(t) else "no (%d of %d)" % (worse32, len(t)), 100 * shift))
+        report["targets"] = {"beats_raw128": beat128, "scenes": len(t), "not_worse_than_raw32": worse32,
+                             "largest_mean_shift": shift}
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(report, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -248,6 +248,42 @@ py::array_t<float> readImage(const std::string& path) {
 
 // A scene's render state kept between calls (isotrace.Scene holds one): the last World, whose
 // grids and bricks the next render reuses when its volumes load alike.
+// What a frame keeps for Frame.denoised(): the denoiser's input (renderer/denoise.h), gathered
+// with the render (about 80 bytes per pixel; 200 for `compare`).
+struct DenoiseBuffers {
+  DenoiseInput input;
+  int threads = 0;
+};
+
+// The denoised images of a frame: {"rgb", and for compare "direct", "indirect"; "seconds",
+// "non_finite_pixels"}.
+py::dict denoiseBuffers(const DenoiseBuffers& b, const std::string& modeName, int threads) {
+  DenoiseMode mode;
+  if (!parseDenoiseMode(modeName, mode) || mode == DenoiseMode::Off)
+    throw InputError("isotrace.Frame.denoised", "mode", "unknown mode '" + modeName + "' (known: quality, fast)");
+  if (threads < 0 || threads > 4096) throw InputError("isotrace.Frame.denoised", "threads", "expected 0 to 4096");
+  const DenoiseInput& in = b.input;
+  Film film(in.width, in.height), direct(in.width, in.height), indirect(0, 0);
+  RenderResult result;
+  DenoiseReport report;
+  {
+    py::gil_scoped_release release;
+    film.pixels() = in.color.mean;
+    if (!in.direct.empty()) direct.pixels() = in.direct.mean;
+    report = denoiseFrame(in, mode, threads, false, film, in.direct.empty() ? nullptr : &direct,
+                          in.direct.empty() ? nullptr : &indirect, result);
+  }
+  py::dict out;
+  out["rgb"] = imageOf(film);
+  if (!in.direct.empty()) {
+    out["direct"] = imageOf(direct);
+    out["indirect"] = imageOf(indirect);
+  }
+  out["seconds"] = report.seconds;
+  out["non_finite_pixels"] = report.nonFinitePixels;
+  return out;
+}
+
 class Renderer {
  public:
   py::dict render(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids,
@@ -338,6 +374,11 @@ void applyOptions(const py::dict& o, SceneDesc& scene, RenderOptions& options) {
     }
   }
   if (py::object v = get("alpha"); !v.is_none()) options.alpha = v.cast<bool>();
+  if (py::object v = get("denoise"); !v.is_none()) {
+    const std::string name = py::isinstance<py::bool_>(v) ? (v.cast<bool>() ? "quality" : "off") : std::string(py::str(v));
+    if (!parseDenoiseMode(name, s.denoise))
+      throw InputError("isotrace.render", "denoise", "unknown mode '" + name + "' (known: " + denoiseModeList() + ")");
+  }
 }
 
 py::dict Renderer::render(const std::string& text, const std::string& path,
@@ -361,6 +402,12 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
   std::atomic<uint64_t> done{0};
   options.workDone = &done;
   const double total = double(s.width) * s.height * s.spp;
+  // Every frame keeps the denoiser's input (Frame.denoised()), where its integrator has noise.
+  std::shared_ptr<DenoiseBuffers> buffers;
+  if (integratorDenoises(s.integrator)) {
+    buffers = std::make_shared<DenoiseBuffers>();
+    options.denoiseInput = &buffers->input;
+  }
 
   // The render runs on its own thread without the GIL; this one wakes every 50 ms to report
   // progress and to let Python look at its signals: Ctrl-C asks the render to stop at the next
@@ -418,12 +465,23 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
 
   py::dict out;
   const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (interrupted) result.interrupted = true;
+  Film indirect(0, 0);
+  if (direct) indirect = indirectOf(film, *direct);
+  if (buffers && s.denoise != DenoiseMode::Off) {
+    out["raw"] = imageOf(film);
+    if (direct) {
+      out["raw_direct"] = imageOf(*direct);
+      out["raw_indirect"] = imageOf(indirect);
+    }
+    py::gil_scoped_release release;
+    denoiseFrame(buffers->input, s.denoise, s.threads, false, film, direct.get(), &indirect, result);
+  }
+  if (buffers) out["denoise_input"] = buffers;
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   out["stats"] = statsJson(scene, loadSeconds, buildSeconds, result, 1, threads, seconds, 1, nullptr);
   out["signed"] = integrator->signedOutput();
   if (direct) {
-    Film indirect = indirectOf(film, *direct);
     out["rgb"] = imageOf(film);
     out["direct"] = imageOf(*direct);
     out["indirect"] = imageOf(indirect);
@@ -617,6 +675,10 @@ PYBIND11_MODULE(_core, m) {
   m.def("check_scene", [gridsOf](const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids) {
     parseScene(text, path, gridsOf(grids));
   });
+  py::class_<DenoiseBuffers, std::shared_ptr<DenoiseBuffers>>(m, "DenoiseBuffers")
+      .def_property_readonly("width", [](const DenoiseBuffers& b) { return b.input.width; })
+      .def_property_readonly("height", [](const DenoiseBuffers& b) { return b.input.height; });
+  m.def("denoise", &denoiseBuffers, py::arg("buffers"), py::arg("mode"), py::arg("threads"));
   py::class_<Renderer>(m, "Renderer")
       .def(py::init<>())
       .def("render", [gridsOf](Renderer& r, const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids,

@@ -360,6 +360,21 @@ RenderSetup prepareRender(const RenderFlags& flags) {
     }
   }
   if (!flags.stats.empty()) checkWritable(flags.stats);
+  if (s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator)) {
+    // The sums, the denoiser's input and its working planes are all held at once: said before
+    // any work if this machine has not that much free.
+    const double pixels = double(s.width) * s.height;
+    const double need = pixels * double(sizeof(PixelSums) + denoiseInputBytesPerPixel(s.integrator == "compare") +
+                                        denoiseBytesPerPixel(s.denoise));
+    const uint64_t free = availableMemoryBytes();
+    if (free > 0 && need > double(free)) {
+      char text[200];
+      std::snprintf(text, sizeof text, "denoising a %dx%d image needs about %.1f GiB while rendering, and this machine "
+                    "has %.1f GiB free; render smaller or without --denoise", s.width, s.height, need / double(1 << 30),
+                    double(free) / double(1 << 30));
+      throw InputError(flags.denoiseGiven ? "--denoise" : r.scene.path, flags.denoiseGiven ? "" : "/film/denoise", text);
+    }
+  }
   return r;
 }
 

@@ -49,6 +49,10 @@ struct DenoiseInput {
   std::vector<Vec3f> albedo, normal;
   std::vector<float> depth;    // mean over the samples that hit something; infinity where none did
   std::vector<float> samples;  // per pixel (where one: the variance is estimated from neighbours)
+  // The variance of the features' means, from the halves' difference ((a - b)^2 / 4, summed over
+  // channels): albedo, normal, depth. Large where the features themselves are noisy (seen
+  // through glass, at edges partly covered); the denoiser smooths them there first.
+  std::vector<Vec3f> featureVariance;
   size_t pixels() const { return size_t(width) * size_t(height); }
 };
 
@@ -57,6 +61,9 @@ struct DenoiseInput {
 size_t denoiseBytesPerPixel(DenoiseMode mode);
 // Bytes per pixel of a DenoiseInput with (or without) the compare integrator's parts.
 size_t denoiseInputBytesPerPixel(bool split);
+
+// The memory this machine has free for new work (MemAvailable of /proc/meminfo), 0 if unknown.
+uint64_t availableMemoryBytes();
 
 struct DenoiseReport {
   double seconds = 0;

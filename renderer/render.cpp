@@ -308,6 +308,7 @@ void resolveDenoiseInput(const std::vector<PixelSums>& sums, int w, int h, bool 
   in.normal.resize(n);
   in.depth.resize(n);
   in.samples.resize(n);
+  in.featureVariance.resize(n);
   for (size_t i = 0; i < n; ++i) {
     const PixelSums& p = sums[i];
     const int all = p.samples, odd = p.samples / 2, even = all - odd;
@@ -335,6 +336,21 @@ void resolveDenoiseInput(const std::vector<PixelSums>& sums, int w, int h, bool 
     in.normal[i] = Vec3f(p.normal / count);
     in.depth[i] = p.depthHits ? float(p.depth / p.depthHits) : INFINITY;
     in.samples[i] = float(all);
+    Vec3d spread{0, 0, 0};
+    if (odd > 0) {
+      auto halves = [&](const Vec3d& sum, const Vec3d& oddSum) {
+        const Vec3d d = (sum - oddSum) / double(even) - oddSum / double(odd);
+        return dot(d, d) / 4;
+      };
+      spread.x = halves(p.albedo, p.oddAlbedo);
+      spread.y = halves(p.normal, p.oddNormal);
+      const int evenHits = p.depthHits - p.oddDepthHits;
+      if (evenHits > 0 && p.oddDepthHits > 0) {
+        const double d = (p.depth - p.oddDepth) / evenHits - p.oddDepth / p.oddDepthHits;
+        spread.z = d * d / 4;
+      }
+    }
+    in.featureVariance[i] = Vec3f(spread);
   }
 }
 

@@ -221,16 +221,43 @@ class Frame:
     """A rendered image. rgb: float32 H x W x 3, linear radiance, row 0 at the top (as in the
     image files). aov(name): an extra layer asked for in render(aovs=[...]) (albedo, normal,
     depth, variance, samples). stats: what ``isotrace render --stats`` writes. For the
-    `compare` integrator, direct and indirect (rgb is the global image); else None."""
+    `compare` integrator, direct and indirect (rgb is the global image); else None.
+    raw: the image as rendered when rgb is denoised (render(denoise=...), denoised()), else None.
+    denoised(mode): the frame denoised from the feature buffers it keeps."""
 
     def __init__(self, result):
         self.rgb = result["rgb"]
         self.direct = result.get("direct")
         self.indirect = result.get("indirect")
+        self.raw = result.get("raw")
+        self._raw_parts = (result.get("raw_direct"), result.get("raw_indirect"))
         self._layers = dict(result["layers"])
         self._signed = bool(result["signed"])
+        self._buffers = result.get("denoise_input")
         self.stats = json.loads(result["stats"])
         self.interrupted = bool(self.stats.get("interrupted"))
+
+    def denoised(self, mode="quality", threads=0):
+        """A copy of this frame denoised in `mode` ("quality": feature regression, the best image;
+        "fast": a-trous, for previews), from the albedo, normal, depth, variance and half images
+        the render kept (so the same as render(..., denoise=mode), bit for bit). Its `raw` is this
+        frame's image; stats["seconds"]["denoise"] its time. `normals` and `eyelight` frames
+        have nothing to denoise (InputError)."""
+        if self._buffers is None:
+            raise InputError("isotrace.Frame.denoised: a %s frame has no noise to remove"
+                             % self.stats.get("integrator"))
+        d = _core.denoise(self._buffers, str(mode), int(threads))
+        frame = copy.copy(self)
+        frame.stats = copy.deepcopy(self.stats)
+        frame.raw = self.raw if self.raw is not None else self.rgb
+        if self.direct is not None and self._raw_parts[0] is None:
+            frame._raw_parts = (self.direct, self.indirect)
+        frame.rgb = d["rgb"]
+        frame.direct = d.get("direct")
+        frame.indirect = d.get("indirect")
+        frame.stats["denoise"] = str(mode)
+        frame.stats.setdefault("seconds", {})["denoise"] = d["seconds"]
+        return frame
 
     @property
     def images(self):
@@ -289,13 +316,16 @@ def _progress_callback(progress):
 
 
 def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed=None, adaptive=None, aovs=None,
-           max_depth=None, intersector=None, ray_flow=None, clamp=None, alpha=None, progress=None):
+           max_depth=None, intersector=None, ray_flow=None, clamp=None, alpha=None, denoise=None, progress=None):
     """Renders `scene` (a Scene, a dict, or a scene file's path) and returns a Frame.
 
     Options left None keep the scene's own (its "film", "integrator", "intersector"): spp,
     integrator (normals, eyelight, ao, direct, path, compare), resolution=(width, height),
     threads (0: all cores), seed, adaptive (noise threshold), aovs (["albedo", "normal",
-    "depth", "variance", "samples"]), max_depth, intersector, ray_flow, clamp, alpha.
+    "depth", "variance", "samples"]), max_depth, intersector, ray_flow, clamp, alpha,
+    denoise ("quality", "fast", "off" or True; the scene's "film": {"denoise"} otherwise): rgb
+    is then the denoised image and frame.raw the rendered one (frame.denoised(mode) denoises any
+    frame afterwards).
     progress: fn(done, total) called about every 50 ms with the pixel samples done (a tqdm bar
     if tqdm is installed and no callback is given). The GIL is released while rendering.
     Ctrl-C (KeyboardInterrupt) stops the render at the next tile and raises with the partial
@@ -307,7 +337,8 @@ def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed
         scene = Scene.load(scene) if isinstance(scene, (str, os.PathLike)) else Scene(scene)
     options = {k: v for k, v in dict(spp=spp, integrator=integrator, resolution=resolution, threads=threads, seed=seed,
                                       adaptive=adaptive, aovs=aovs, max_depth=max_depth, intersector=intersector,
-                                      ray_flow=ray_flow, clamp=clamp, alpha=alpha).items() if v is not None}
+                                      ray_flow=ray_flow, clamp=clamp, alpha=alpha, denoise=denoise).items()
+               if v is not None}
     result = scene._renderer.render(scene._text(), scene.path, scene._grids(), options, _progress_callback(progress))
     frame = Frame(result)
     if result["keyboard_interrupt"]:
