@@ -397,7 +397,13 @@ void fitCentre(const Prepared& p, const Planes& y, const WeightFn& weight, int c
 
 // One half filtered: models at the centres fitted to `half` with weights on `guide` (the other
 // half), then every pixel the weighted blend of the predictions of the centres within `stride`.
-std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Planes& guide, const QualityParams& q) {
+//
+// A pixel whose guide matches no centre around it (a pixel on an edge: its 3x3 guide mixes both
+// sides) would blend the centres by weights that are all ~0 and so alike: both sides' models.
+// Each prediction is therefore also weighed by how well it agrees with the other half's own
+// value at the pixel (within twice its noise): the model of the pixel's side wins there.
+std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Planes& guide, const Planes& other,
+                              const QualityParams& q) {
   const int S = q.stride;
   const int nx = (p.width + S - 1) / S, ny = (p.height + S - 1) / S;
   auto centreX = [&](int i) { return std::min(p.width - 1, S / 2 + i * S); };
@@ -423,13 +429,16 @@ std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Plane
           const size_t c = F.at(centreX(i), centreY(j));
           if (valid[c] == 0) continue;
           // A pixel that is not valid has no features: it takes the centres' intercepts alike.
-          const float w = ok ? weight(c, at) : 1.f;
+          float v[3], disagree = 0;
           for (int ch = 0; ch < 3; ++ch) {
-            float v = m.beta[0][ch];
+            v[ch] = m.beta[0][ch];
             if (ok)
-              for (int k = 0; k < Prepared::kFeatures; ++k) v += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
-            sum[ch] += double(w) * v;
+              for (int k = 0; k < Prepared::kFeatures; ++k) v[ch] += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
+            const float d = v[ch] - other.plane(ch)[at];
+            disagree += d * d / (4 * other.plane(3 + ch)[at] + 1e-6f);
           }
+          const float w = ok ? (weight(c, at) + 1e-3f) * expNegative(-disagree * (1.f / 3)) : 1.f;
+          for (int ch = 0; ch < 3; ++ch) sum[ch] += double(w) * v[ch];
           wsum += w;
         }
       Vec3f v{0, 0, 0};
@@ -452,8 +461,8 @@ std::vector<Vec3f> denoiseQuality(const DenoiseInput& in, const NoisyImage& imag
   fillUnknownVariance(p, samples, B);
   boxGuide(p, A, p.features.pad, guideA);
   boxGuide(p, B, p.features.pad, guideB);
-  const std::vector<Vec3f> fa = filterHalf(p, A, guideB, q);
-  const std::vector<Vec3f> fb = filterHalf(p, B, guideA, q);
+  const std::vector<Vec3f> fa = filterHalf(p, A, guideB, B, q);
+  const std::vector<Vec3f> fb = filterHalf(p, B, guideA, A, q);
   std::vector<Vec3f> out(in.pixels());
   for (size_t i = 0; i < out.size(); ++i) out[i] = (fa[i] + fb[i]) * 0.5f;
   return out;
@@ -723,6 +732,29 @@ void restoreLocalMean(const Prepared& p, const std::vector<Vec3f>& raw, std::vec
   });
 }
 
+// A pixel that took no part (not finite) gets the mean of its valid neighbours' results, from the
+// nearest ring (3x3, then 5x5, ...) that has any; 0 if none within 7x7.
+void fillFromNeighbours(const Prepared& p, std::vector<Vec3f>& out) {
+  if (p.nonFinite == 0) return;
+  const Planes& F = p.features;
+  const float* valid = F.plane(Prepared::kValid);
+  for (int y = 0; y < p.height; ++y)
+    for (int x = 0; x < p.width; ++x) {
+      if (valid[F.at(x, y)] != 0) continue;
+      Vec3f sum{0, 0, 0};
+      int n = 0;
+      for (int r = 1; r <= 3 && n == 0; ++r)
+        for (int dy = -r; dy <= r; ++dy)
+          for (int dx = -r; dx <= r; ++dx) {
+            const int qx = x + dx, qy = y + dy;
+            if (qx < 0 || qy < 0 || qx >= p.width || qy >= p.height || valid[F.at(qx, qy)] == 0) continue;
+            sum += out[size_t(qy) * size_t(p.width) + size_t(qx)];
+            ++n;
+          }
+      out[size_t(y) * size_t(p.width) + size_t(x)] = n ? sum / float(n) : Vec3f(0, 0, 0);
+    }
+}
+
 }  // namespace
 
 size_t denoiseBytesPerPixel(DenoiseMode mode) {
@@ -758,6 +790,7 @@ std::vector<Vec3f> denoise(const DenoiseInput& in, const NoisyImage& image, Deno
     if (!in.samples.empty()) samples = in.samples;
     out = mode == DenoiseMode::Quality ? denoiseQuality(in, image, p, samples) : denoiseFast(in, image, p, samples);
     restoreLocalMean(p, image.mean, out);
+    fillFromNeighbours(p, out);
     if (report) report->nonFinitePixels += p.nonFinite;
   });
   if (report) report->seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
