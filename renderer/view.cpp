@@ -138,6 +138,7 @@ class ViewSession {
     uint64_t serial = 0, version = 0;
     int spp = 0;
     bool preview = false;  // a quick look at a fraction of the resolution: shown, never saved
+    DenoiseMode denoised = DenoiseMode::Off;  // the mode its image went through
     std::string event;     // the server-sent event of this frame
     std::string jpeg;
     int shownWidth = 0;    // of the JPEG (compare: three images side by side)
@@ -153,8 +154,9 @@ class ViewSession {
   bool renderPassOver(tbb::task_arena& arena, const Camera& camera, const Integrator& integrator,
                       const RenderOptions& options, int w, int h, int s0, int s1, std::vector<PixelSums>& sums,
                       uint64_t& rays, uint64_t version);
+  // `denoise`: the mode the frame's image goes through (Off: as rendered).
   Frame makeFrame(const std::vector<PixelSums>& sums, int w, int h, const RenderOptions& options,
-                  const Integrator& integrator);
+                  const Integrator& integrator, DenoiseMode denoise);
   // Makes `frame` the one shown (and, unless a preview, the one Save writes), if `version` is
   // still the current one.
   void publish(Frame frame, uint64_t version, int spp, int target, Clock::time_point changedAt, double mrays);
@@ -273,6 +275,7 @@ std::string ViewSession::stateJson() {
   s["height"] = m_height;
   s["spp_target"] = m_desc.settings.spp;
   s["integrator"] = m_desc.settings.integrator;
+  s["denoise"] = m_desc.settings.denoise != DenoiseMode::Off;
   s["integrators"] = Json::array();
   for (const char* name : kIntegrators) s["integrators"].push_back(name);
   const CameraDesc c = cameraShown();
@@ -317,9 +320,10 @@ void ViewSession::apply(const std::string& body) {
   bool rebuild = false;
   for (const auto& [key, value] : change.items()) {
     if (key != "surface" && key != "value" && key != "color" && key != "color_by" && key != "slice" &&
-        key != "position" && key != "integrator" && key != "camera" && key != "clip")
+        key != "position" && key != "integrator" && key != "camera" && key != "clip" && key != "denoise")
       throw InputError(where, "/" + key,
-                       "unknown key (known: surface, value, color, color_by, slice, position, clip, integrator, camera)");
+                       "unknown key (known: surface, value, color, color_by, slice, position, clip, integrator, camera, "
+                       "denoise)");
   }
   AxisClip axisClips[3] = {m_axisClips[0], m_axisClips[1], m_axisClips[2]};
   if (change.contains("clip")) {
@@ -438,6 +442,15 @@ void ViewSession::apply(const std::string& body) {
       throw InputError(where, "/integrator", "expected one of normals, eyelight, ao, direct, path, compare");
     if (!doc.contains("integrator") || !doc["integrator"].is_object()) doc["integrator"] = Json::object();
     doc["integrator"]["type"] = name;
+  }
+  if (change.contains("denoise")) {
+    // On: the fast mode while samples come in, the scene's mode (quality unless it says fast) at
+    // the last pass; the saved scene keeps it.
+    const Json& on = change["denoise"];
+    if (!on.is_boolean()) throw InputError(where, "/denoise", "expected true or false");
+    if (!doc.contains("film") || !doc["film"].is_object()) doc["film"] = Json::object();
+    const bool fast = m_desc.settings.denoise == DenoiseMode::Fast;
+    doc["film"]["denoise"] = on.get<bool>() ? (fast ? "fast" : "quality") : "off";
   }
   if (change.contains("camera")) {
     const Json& c = change["camera"];
@@ -568,7 +581,9 @@ void ViewSession::run() {
         std::vector<PixelSums> previewSums(size_t(pw) * ph);
         uint64_t previewRays = 0;
         if (!renderPassOver(arena, small, *integrator, options, pw, ph, 0, 1, previewSums, previewRays, built)) continue;
-        Frame frame = makeFrame(previewSums, pw, ph, options, *integrator);
+        const bool denoise = desc.settings.denoise != DenoiseMode::Off && integratorDenoises(desc.settings.integrator);
+        const DenoiseMode mode = denoise ? DenoiseMode::Fast : DenoiseMode::Off;
+        Frame frame = makeFrame(previewSums, pw, ph, options, *integrator, mode);
         frame.preview = true;
         publish(std::move(frame), built, 0, options.spp, changedAt, 0);
         continue;
@@ -581,7 +596,9 @@ void ViewSession::run() {
     renderSeconds += std::chrono::duration<double>(Clock::now() - passStart).count();
     ++pass;
     s0 = s1;
-    Frame frame = makeFrame(sums, m_width, m_height, options, *integrator);
+    const bool denoise = desc.settings.denoise != DenoiseMode::Off && integratorDenoises(desc.settings.integrator);
+    const DenoiseMode mode = !denoise ? DenoiseMode::Off : s1 >= options.spp ? desc.settings.denoise : DenoiseMode::Fast;
+    Frame frame = makeFrame(sums, m_width, m_height, options, *integrator, mode);
     frame.doc = doc;
     frame.camera = cameraDesc;
     publish(std::move(frame), built, s1, options.spp, changedAt, renderSeconds > 0 ? double(rays) / renderSeconds * 1e-6 : 0);
@@ -609,19 +626,29 @@ bool ViewSession::renderPassOver(tbb::task_arena& arena, const Camera& camera, c
 }
 
 ViewSession::Frame ViewSession::makeFrame(const std::vector<PixelSums>& sums, int w, int h, const RenderOptions& options,
-                                          const Integrator& integrator) {
+                                          const Integrator& integrator, DenoiseMode denoise) {
   Frame frame;
   frame.film = std::make_shared<Film>(w, h);
   if (integrator.splitsDirect()) frame.direct = std::make_shared<Film>(w, h);
   RenderResult result;
-  resolveFrame(sums, options, *frame.film, frame.direct.get(), result);
+  DenoiseInput input;
+  const bool denoising = denoise != DenoiseMode::Off;
+  RenderOptions resolve = options;
+  resolve.denoiseInput = denoising ? &input : nullptr;
+  resolveFrame(sums, resolve, *frame.film, frame.direct.get(), result);
+  Film indirect(0, 0);
+  if (denoising) {
+    denoiseFrame(input, denoise, m_options.threads, false, *frame.film, frame.direct.get(), &indirect, result);
+    frame.denoised = denoise;
+  }
   frame.signedData = integrator.signedOutput();
   std::vector<uint8_t> rgb = displayRgb(*frame.film, frame.signedData);
   int shownWidth = w;
   if (frame.direct) {
     // compare: direct, global and indirect side by side.
-    const std::vector<uint8_t> parts[3] = {displayRgb(*frame.direct, false), rgb,
-                                           displayRgb(indirectOf(*frame.film, *frame.direct), false)};
+    const std::vector<uint8_t> parts[3] = {
+        displayRgb(*frame.direct, false), rgb,
+        displayRgb(frame.denoised != DenoiseMode::Off ? indirect : indirectOf(*frame.film, *frame.direct), false)};
     shownWidth = 3 * w;
     rgb.assign(size_t(shownWidth) * h * 3, 0);
     for (int y = 0; y < h; ++y)
@@ -639,6 +666,7 @@ void ViewSession::publish(Frame frame, uint64_t version, int spp, int target, Cl
                       {"spp", spp},
                       {"spp_target", target},
                       {"preview", frame.preview},
+                      {"denoise", denoiseModeName(frame.denoised)},
                       {"seconds", std::chrono::duration<double>(Clock::now() - changedAt).count()},
                       {"mrays", mrays},
                       {"display_width", (frame.direct ? 3 : 1) * m_width},  // a preview is shown stretched
@@ -666,7 +694,9 @@ Json ViewSession::save() {
   const Frame& f = m_saveable;
   Json doc = f.doc;
   // What reproduces this picture with `isotrace render`: its size, samples and camera.
-  doc["film"] = {{"width", m_width}, {"height", m_height}};
+  if (!doc.contains("film") || !doc["film"].is_object()) doc["film"] = Json::object();
+  doc["film"]["width"] = m_width;  // (its "denoise" stays: the picture shown went through it)
+  doc["film"]["height"] = m_height;
   if (!doc.contains("integrator") || !doc["integrator"].is_object()) doc["integrator"] = Json::object();
   doc["integrator"]["spp"] = f.spp;
   doc["integrator"].erase("noise_threshold");  // the viewer samples every pixel alike

@@ -34,6 +34,7 @@ inline constexpr const char* kViewPage = R"HTML(<!doctype html>
 <div id="panel">
   <div><b>isotrace view</b> <span id="scene"></span></div>
   <label>integrator <select id="integrator"></select></label>
+  <label><input type="checkbox" id="denoise"> denoise</label>
   <div id="surfaces"></div>
   <div id="slices"></div>
   <div id="clips"></div>
@@ -91,6 +92,7 @@ function showState(s) {
   if (select.options.length === 0)
     for (const name of s.integrators) select.add(new Option(name, name));
   select.value = s.integrator;
+  $("denoise").checked = !!s.denoise;
   $("target").textContent = s.spp_target;
   const box = $("surfaces");
   if (box.children.length !== s.surfaces.length) {
@@ -212,6 +214,7 @@ function loadState() {
 }
 
 $("integrator").addEventListener("change", () => send("integrator", {integrator: $("integrator").value}));
+$("denoise").addEventListener("change", () => send("denoise", {denoise: $("denoise").checked}));
 $("save").addEventListener("click", () => {
   $("saved").textContent = "saving…";
   fetch("/api/save", {method: "POST"}).then((r) => r.json().then((body) => {

@@ -307,6 +307,48 @@ TEST(View, ChangesReachTheFramesAndSaveRendersTheSamePicture) {
   EXPECT_EQ(Json::parse(again->body)["files"][0], dir + "/s.view-2.json");
 }
 
+// The denoise toggle: the fast mode while samples come in, the scene's mode at the last pass;
+// Save keeps it, and the saved scene renders the same denoised picture.
+TEST(View, DenoiseToggleDenoisesWhileSamplesComeInAndSaveKeepsIt) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", test::mixedScene());
+  SceneOverrides overrides;
+  overrides.set = {"/integrator/type=path", "/integrator/spp=4"};
+  Running view(dir + "/s.json", 40, 30, overrides);
+  httplib::Client c("127.0.0.1", view.port);
+  EXPECT_EQ(state(c)["denoise"], false);
+  auto changed = c.Post("/api/state", R"({"denoise": true})", "application/json");
+  ASSERT_TRUE(changed);
+  ASSERT_EQ(changed->status, 200) << changed->body;
+  const Json after = Json::parse(changed->body);
+  EXPECT_EQ(after["denoise"], true);
+  const Json first = frameOf(view.port, after["version"], 1);
+  ASSERT_FALSE(first.is_null());
+  EXPECT_EQ(first["denoise"], first["spp"].get<int>() < 4 ? "fast" : "quality");
+  const Json last = frameOf(view.port, after["version"], 4);
+  ASSERT_FALSE(last.is_null());
+  EXPECT_EQ(last["denoise"], "quality");
+  auto saved = c.Post("/api/save", "", "application/json");
+  ASSERT_TRUE(saved);
+  ASSERT_EQ(saved->status, 200) << saved->body;
+  const std::string base = dir + "/s.view-1";
+  std::ifstream in(base + ".json");
+  const Json doc = Json::parse(in);
+  EXPECT_EQ(doc["film"]["denoise"], "quality");
+  const auto r = test::runIsotrace("render " + base + ".json -o " + dir + "/batch.exr --quiet");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::vector<float> batch = test::readExr(dir + "/batch.exr");
+  ASSERT_FALSE(batch.empty());
+  // (The batch EXR also holds the raw layer; the view's EXR only the denoised image.)
+  const std::vector<float> shown = test::readExr(base + ".exr");
+  ASSERT_EQ(batch.size(), shown.size() * 2);
+  for (size_t p = 0; p < shown.size() / 3; ++p)
+    for (int k = 0; k < 3; ++k) ASSERT_EQ(batch[6 * p + size_t(k)], shown[3 * p + size_t(k)]) << p;
+  auto off = c.Post("/api/state", R"({"denoise": "yes"})", "application/json");
+  ASSERT_TRUE(off);
+  EXPECT_EQ(off->status, 400);
+}
+
 TEST(View, SurvivesDroppedConnectionsAndStopsPromptly) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/s.json", test::mixedScene());
