@@ -422,25 +422,54 @@ std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Plane
       const int i0 = std::max(0, (x - S - S / 2 + S - 1) / S), i1 = std::min(nx - 1, (x + S - S / 2) / S);
       const size_t at = F.at(x, y);
       const bool ok = valid[at] != 0;
-      double sum[3] = {0, 0, 0}, wsum = 0;
+      // Up to 3 x 3 centres (stride 3, reach 3): their predictions, guide weights and
+      // disagreements; the least disagreement is the scale (a pixel no model fits well, e.g. a
+      // dark one of almost no variance, takes the one that fits best, not all alike).
+      float pv[17][3], pw[17], pe[17], least = INFINITY;
+      int n = 0;
       for (int j = j0; j <= j1; ++j)
-        for (int i = i0; i <= i1; ++i) {
+        for (int i = i0; i <= i1 && n < 16; ++i) {
           const CentreModel& m = models[size_t(j) * nx + i];
           const size_t c = F.at(centreX(i), centreY(j));
           if (valid[c] == 0) continue;
           // A pixel that is not valid has no features: it takes the centres' intercepts alike.
-          float v[3], disagree = 0;
+          float disagree = 0;
           for (int ch = 0; ch < 3; ++ch) {
-            v[ch] = m.beta[0][ch];
+            float v = m.beta[0][ch];
             if (ok)
-              for (int k = 0; k < Prepared::kFeatures; ++k) v[ch] += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
-            const float d = v[ch] - other.plane(ch)[at];
+              for (int k = 0; k < Prepared::kFeatures; ++k) v += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
+            pv[n][ch] = std::max(v, 0.f);  // radiance is not negative (the mean is restored below)
+            const float d = pv[n][ch] - other.plane(ch)[at];
             disagree += d * d / (4 * other.plane(3 + ch)[at] + 1e-6f);
           }
-          const float w = ok ? (weight(c, at) + 1e-3f) * expNegative(-disagree * (1.f / 3)) : 1.f;
-          for (int ch = 0; ch < 3; ++ch) sum[ch] += double(w) * v[ch];
-          wsum += w;
+          pw[n] = ok ? weight(c, at) + 1e-3f : 1.f;
+          pe[n] = ok ? disagree * (1.f / 3) : 0.f;
+          least = std::min(least, pe[n]);
+          ++n;
         }
+      // The pixel's own value is a candidate too, of small prior weight: where no model agrees
+      // with the other half (a one-pixel dark gap the features do not show) it keeps its own.
+      // Measured at 16 spp: default 0.0191 -> 0.0156, engine_volume 0.0144 -> 0.0120, but the
+      // Cornell box 0.023 -> 0.047 (fireflies kept); offering it only beyond 4 standard
+      // deviations split the difference (0.0170, 0.0129, 0.039).
+      if (ok) {
+        float disagree = 0;
+        for (int ch = 0; ch < 3; ++ch) {
+          pv[n][ch] = half.plane(ch)[at];
+          const float d = pv[n][ch] - other.plane(ch)[at];
+          disagree += d * d / (4 * other.plane(3 + ch)[at] + 1e-6f);
+        }
+        pw[n] = 1e-3f;
+        pe[n] = disagree * (1.f / 3);
+        least = std::min(least, pe[n]);
+        ++n;
+      }
+      double sum[3] = {0, 0, 0}, wsum = 0;
+      for (int k = 0; k < n; ++k) {
+        const float w = pw[k] * expNegative(least - pe[k]);
+        for (int ch = 0; ch < 3; ++ch) sum[ch] += double(w) * pv[k][ch];
+        wsum += w;
+      }
       Vec3f v{0, 0, 0};
       if (wsum > 0) v = Vec3f(float(sum[0] / wsum), float(sum[1] / wsum), float(sum[2] / wsum));
       else if (ok) v = Vec3f(half.plane(0)[half.at(x, y)], half.plane(1)[half.at(x, y)], half.plane(2)[half.at(x, y)]);

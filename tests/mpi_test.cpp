@@ -120,6 +120,30 @@ TEST(Mpi, CompareAndSequencesMatchOneProcess) {
   EXPECT_EQ(two["spp"], 3);
 }
 
+// --denoise under MPI: the denoiser runs once, on rank 0, on the gathered sums: the same bits as
+// one process, by tiles (image-parallel, compare too) and with the volumes split (data-parallel).
+TEST(Mpi, DenoisedOnceOnTheGatheredImage) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  for (const std::string& flags : {std::string("--integrator path --spp 8 --denoise"),
+                                   std::string("--integrator path --spp 8 --denoise fast --data-parallel"),
+                                   std::string("--integrator compare --spp 6 --denoise")}) {
+    SCOPED_TRACE(flags);
+    const auto one = runIsotrace("render " + dir + "/s.json " + flags + " --threads 2 --quiet -o " + dir + "/one.exr");
+    ASSERT_EQ(one.status, 0) << one.err;
+    const auto two = runCommand(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json " + flags +
+                                " --threads 1 --quiet -o " + dir + "/two.exr");
+    ASSERT_EQ(two.status, 0) << two.err;
+    const bool compare = flags.find("compare") != std::string::npos;
+    for (const std::string part : compare ? std::vector<std::string>{".direct", ".global", ".indirect"}
+                                          : std::vector<std::string>{""}) {
+      const std::vector<float> a = readExr(dir + "/one" + part + ".exr");
+      ASSERT_FALSE(a.empty()) << part;
+      EXPECT_EQ(readExr(dir + "/two" + part + ".exr"), a) << part;
+    }
+  }
+}
+
 // Bad input seen by one rank only (MPMD: rank 1 gets another scene): one line from rank 0
 // naming that rank and the file, status 2, no image, no hang. A rank that crashes ends the run
 // too (mpirun kills the others), with no image left behind.

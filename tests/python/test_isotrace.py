@@ -269,3 +269,38 @@ def test_import_needs_no_environment_variable():
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip().endswith("isotrace/__init__.py")
+
+
+def test_denoise_matches_the_command_line_and_frame_denoised(tmp_path):
+    field = blobs()
+    nz, ny, nx = field.shape
+    field.tofile(tmp_path / "blobs.raw")
+    iso = [{"value": 0.5, "color": [0.8, 0.5, 0.3]}]
+    scene_file = {"camera": CAMERA, "lights": LIGHTS,
+                  "volumes": [{"file": "blobs.raw", "dims": [nx, ny, nz], "type": "float32", "isosurfaces": iso}]}
+    (tmp_path / "s.json").write_text(json.dumps(scene_file))
+    cli = subprocess.run([BINARY, "render", str(tmp_path / "s.json"), "-o", str(tmp_path / "cli.exr"), "--spp", "4",
+                          "--integrator", "path", "--resolution", "64x48", "--threads", "2", "--seed", "5", "--quiet",
+                          "--denoise", "quality"], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    scene = isotrace.Scene({"camera": CAMERA, "lights": LIGHTS})
+    scene.add_volume(isotrace.Volume(field), isosurfaces=iso)
+    frame = isotrace.render(scene, spp=4, integrator="path", resolution=(64, 48), threads=1, seed=5, denoise="quality")
+    assert np.array_equal(frame.rgb, isotrace.read_image(tmp_path / "cli.exr")[:, :, :3])
+    assert frame.raw is not None and not np.array_equal(frame.raw, frame.rgb)
+    assert frame.stats["denoise"] == "quality" and frame.stats["seconds"]["denoise"] > 0
+    raw = isotrace.render(scene, spp=4, integrator="path", resolution=(64, 48), threads=2, seed=5)
+    assert raw.raw is None and np.array_equal(raw.rgb, frame.raw)
+    later = raw.denoised("quality")
+    assert np.array_equal(later.rgb, frame.rgb), "denoised afterwards: the same bits"
+    assert np.array_equal(later.raw, raw.rgb) and np.array_equal(raw.rgb, frame.raw), "the frame itself is untouched"
+    fast = raw.denoised("fast")
+    assert fast.stats["denoise"] == "fast" and not np.array_equal(fast.rgb, later.rgb)
+    compare = isotrace.render(scene, spp=4, integrator="compare", resolution=(64, 48), seed=5).denoised()
+    assert np.allclose(compare.rgb, compare.direct + compare.indirect, rtol=1e-6, atol=1e-7)
+    with pytest.raises(isotrace.InputError, match="unknown mode 'sharp'"):
+        raw.denoised("sharp")
+    with pytest.raises(isotrace.InputError, match="denoise: unknown mode 'sharp'"):
+        isotrace.render(scene, spp=1, resolution=(8, 8), denoise="sharp")
+    with pytest.raises(isotrace.InputError, match="no noise to remove"):
+        isotrace.render(scene, spp=1, resolution=(8, 8), integrator="normals").denoised()
