@@ -14,6 +14,8 @@ not. --json writes every figure; --images DIR writes the PNGs (raw, quality, fas
 
     bench/denoise.py [--scenes a,b] [--spp 4,16,64] [--json FILE] [--images DIR]
                      [--references-only] [--threads N] [--timing 1920x1080]
+    bench/denoise.py --report FILE.json [--plot OUT.png]   # the markdown table of a run (and
+                     # time-against-error plots, one panel per scene, through gnuplot)
 
 Needs Debian's python3 with numpy and the module build/python (./run.sh builds it).
 """
@@ -198,6 +200,61 @@ def timing(size, threads):
     return result
 
 
+def print_report(path, plot):
+    with open(path) as f:
+        r = json.load(f)
+    rows = r["rows"]
+    scenes = sorted({x["scene"] for x in rows})
+    by = {(x["scene"], x["spp"]): x for x in rows}
+    spps = sorted({x["spp"] for x in rows if "quality" in x})
+    print("| scene | " + " | ".join("raw %d" % s for s in sorted({x["spp"] for x in rows})) + " | " +
+          " | ".join("quality %d" % s for s in spps) + " | " + " | ".join("fast %d" % s for s in spps) + " |")
+    print("|---" * (1 + len({x["spp"] for x in rows}) + 2 * len(spps)) + "|")
+    for s in scenes:
+        cells = ["%.4f" % by[(s, n)]["raw"]["relmse"] for n in sorted({x["spp"] for x in rows}) if (s, n) in by]
+        for mode in ("quality", "fast"):
+            cells += ["%.4f" % by[(s, n)][mode]["relmse"] if (s, n) in by and mode in by[(s, n)] else "" for n in spps]
+        print("| %s | %s |" % (s, " | ".join(cells)))
+    print()
+    print("| scene | SSIM raw 16 | quality 16 | fast 16 | raw 128 | mean shift quality (largest) | fast | render s 16 | denoise s quality, fast |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for s in scenes:
+        a, b = by.get((s, 16)), by.get((s, 128))
+        if not (a and b and "quality" in a):
+            continue
+        shift = {m: max(abs(by[(s, n)][m]["mean_shift"]) for n in spps if (s, n) in by) for m in ("quality", "fast")}
+        print("| %s | %.3f | %.3f | %.3f | %.3f | %.2f%% | %.2f%% | %.2f | %.3f, %.3f |" % (
+            s, a["raw"]["ssim"], a["quality"]["ssim"], a["fast"]["ssim"], b["raw"]["ssim"], 100 * shift["quality"],
+            100 * shift["fast"], a["render_seconds"], a["quality"]["seconds"], a["fast"]["seconds"]))
+    if not plot:
+        return
+    import tempfile
+    tmp = tempfile.mkdtemp()
+    for s in scenes:
+        with open(os.path.join(tmp, s + ".raw"), "w") as raw, open(os.path.join(tmp, s + ".den"), "w") as den:
+            for n in sorted({x["spp"] for x in rows}):
+                x = by.get((s, n))
+                if not x:
+                    continue
+                t = x["render_seconds"]
+                raw.write("%g %g\n" % (t, x["raw"]["relmse"]))
+                if "quality" in x:
+                    den.write("%g %g %g %g\n" % (t + x["quality"]["seconds"], x["quality"]["relmse"],
+                                                 t + x["fast"]["seconds"], x["fast"]["relmse"]))
+    cols = 4
+    rows_n = (len(scenes) + cols - 1) // cols
+    script = ["set terminal pngcairo size %d,%d font 'DejaVu Sans,9'" % (300 * cols, 240 * rows_n),
+              "set output '%s'" % plot, "set multiplot layout %d,%d" % (rows_n, cols),
+              "set logscale xy", "set key top right", "set termoption noenhanced", "set xlabel 'seconds (render + denoise)'", "set ylabel 'relMSE'"]
+    for s in scenes:
+        d = os.path.join(tmp, s)
+        script.append("set title '%s (points: 4, 16, 32, 64 ... spp)'" % s)
+        script.append("plot '%s.raw' u 1:2 w lp t 'raw', '%s.den' u 1:2 w lp t 'quality', '' u 3:4 w lp t 'fast'" % (d, d))
+    script.append("unset multiplot")
+    subprocess.run(["gnuplot"], input="\n".join(script), text=True, check=True)
+    print("\nplot: " + plot)
+
+
 LUM = None
 np = None
 isotrace = None
@@ -214,7 +271,12 @@ def main():
     p.add_argument("--images", default="")
     p.add_argument("--timing", default="", help="WxH: time the denoiser alone at this size")
     p.add_argument("--references-only", action="store_true")
+    p.add_argument("--report", default="", help="a --json file: print its tables")
+    p.add_argument("--plot", default="", help="with --report: time-against-error plots to this PNG")
     a = p.parse_args()
+    if a.report:
+        print_report(a.report, a.plot)
+        return
     scenes = a.scenes.split(",") if a.scenes else example_scenes()
     if scenes == ["none"]:
         scenes = []

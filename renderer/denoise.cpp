@@ -95,7 +95,7 @@ bool pixelValid(const DenoiseInput& in, const NoisyImage& image, size_t i) {
 // Features are noisy where a pixel's samples see different things (glass that reflects or
 // transmits, partly covered edges): a regression on them would keep the noise it should remove.
 // NFOR (section 5.2) first filters them by NL-means on their own half buffers; here each noisy
-// pixel's features become the average over the 7x7 pixels around it that differ from it by no
+// pixel's features become the average over the 5x5 pixels around it that differ from it by no
 // more than their variances explain (per group: albedo, normal, depth). Pixels whose features
 // have no variance keep them as they are.
 void smoothNoisyFeatures(Prepared& p, const Planes& spread) {
@@ -112,8 +112,8 @@ void smoothNoisyFeatures(Prepared& p, const Planes& spread) {
       const float vc[3] = {spread.plane(0)[c], spread.plane(1)[c], spread.plane(2)[c]};
       if (!(vc[0] + vc[1] + vc[2] > 3 * kFloor)) continue;
       float sum[Prepared::kFeatures] = {}, wsum = 0;
-      for (int dy = -3; dy <= 3; ++dy)
-        for (int dx = -3; dx <= 3; ++dx) {
+      for (int dy = -2; dy <= 2; ++dy)
+        for (int dx = -2; dx <= 2; ++dx) {
           const size_t q = F.at(x + dx, y + dy);
           if (valid[q] == 0) continue;
           float d[3] = {0, 0, 0};
@@ -258,17 +258,29 @@ void boxGuide(const Prepared& p, const Planes& half, int pad, Planes& guide) {
     for (int x = 0; x < p.width; ++x) {
       const size_t o = guide.at(x, y);
       if (valid[p.features.at(x, y)] == 0) continue;
-      float s[6] = {0, 0, 0, 0, 0, 0};
-      float n = 0;
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-          const float v = valid[p.features.at(x + dx, y + dy)];
-          const size_t q = half.at(x + dx, y + dy);
-          for (int c = 0; c < 6; ++c) s[c] += v * half.plane(c)[q];
-          n += v;
-        }
-      for (int c = 0; c < 3; ++c) guide.plane(c)[o] = s[c] / n;
-      for (int c = 3; c < 6; ++c) guide.plane(c)[o] = s[c] / (n * n);
+      for (int c = 0; c < 3; ++c) {
+        // Weighted by inverse variance (floored at half the 3x3 mean): a partly covered
+        // pixel at a lamp's edge (variance 45 beside 0.01) would otherwise make its neighbours'
+        // guides look like the lamp and pull its radiance into them.
+        float mean = 0, n = 0;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const float v = valid[p.features.at(x + dx, y + dy)];
+            mean += v * half.plane(3 + c)[half.at(x + dx, y + dy)];
+            n += v;
+          }
+        const float floor = 0.5f * mean / n + 1e-12f;
+        float sw = 0, sx = 0, sv = 0;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const size_t q = half.at(x + dx, y + dy);
+            const float var = half.plane(3 + c)[q];
+            const float w = valid[p.features.at(x + dx, y + dy)] / (var + floor);
+            sw += w, sx += w * half.plane(c)[q], sv += w * w * var;
+          }
+        guide.plane(c)[o] = sx / sw;
+        guide.plane(3 + c)[o] = sv / (sw * sw);
+      }
     }
   });
 }
@@ -298,6 +310,7 @@ struct WeightFn {
 struct CentreModel {
   float beta[kD][3];
   float f[Prepared::kFeatures];
+  float lo[3], hi[3];  // the colours it was fitted on (weight above 1%): predictions stay inside
 };
 
 // Weighted least squares at one centre: sum over the window of w (y - beta . x)^2 with x = (1,
@@ -312,6 +325,9 @@ void fitCentre(const Prepared& p, const Planes& y, const WeightFn& weight, int c
   for (int j = 0; j < Prepared::kFeatures; ++j) fc[j] = F.plane(j)[c];
   float G[kD][kD][kLanes] = {};
   float Rhs[kD][3][kLanes] = {};
+  float lo[3][kLanes], hi[3][kLanes];
+  for (int ch = 0; ch < 3; ++ch)
+    for (int l = 0; l < kLanes; ++l) lo[ch][l] = INFINITY, hi[ch][l] = -INFINITY;
   const float* valid = F.plane(Prepared::kValid);
   const int width = 2 * q.radius + 1;
   for (int dy = -q.radius; dy <= q.radius; ++dy) {
@@ -327,6 +343,12 @@ void fitCentre(const Prepared& p, const Planes& y, const WeightFn& weight, int c
         for (int j = 0; j < Prepared::kFeatures; ++j) xs[1 + j][l] = F.plane(j)[at] - fc[j];
         for (int ch = 0; ch < 3; ++ch) ys[ch][l] = y.plane(ch)[at];
       }
+      for (int ch = 0; ch < 3; ++ch)
+        for (int l = 0; l < kLanes; ++l) {
+          const bool counts = w[l] > 0.01f;
+          lo[ch][l] = counts ? std::min(lo[ch][l], ys[ch][l]) : lo[ch][l];
+          hi[ch][l] = counts ? std::max(hi[ch][l], ys[ch][l]) : hi[ch][l];
+        }
       for (int i = 0; i < kD; ++i) {
         float wx[kLanes];
         for (int l = 0; l < kLanes; ++l) wx[l] = w[l] * xs[i][l];
@@ -351,6 +373,10 @@ void fitCentre(const Prepared& p, const Planes& y, const WeightFn& weight, int c
     }
   }
   for (int j = 0; j < Prepared::kFeatures; ++j) model.f[j] = fc[j];
+  for (int ch = 0; ch < 3; ++ch) {
+    model.lo[ch] = INFINITY, model.hi[ch] = -INFINITY;
+    for (int l = 0; l < kLanes; ++l) model.lo[ch] = std::min(model.lo[ch], lo[ch][l]), model.hi[ch] = std::max(model.hi[ch], hi[ch][l]);
+  }
   const double total = A[0][0];
   if (!(total > 0)) {  // nothing valid around (or all weights 0): no model, predicted as 0
     for (auto& b : model.beta) b[0] = b[1] = b[2] = 0;
@@ -438,7 +464,9 @@ std::vector<Vec3f> filterHalf(const Prepared& p, const Planes& half, const Plane
             float v = m.beta[0][ch];
             if (ok)
               for (int k = 0; k < Prepared::kFeatures; ++k) v += m.beta[1 + k][ch] * (F.plane(k)[at] - m.f[k]);
-            pv[n][ch] = std::max(v, 0.f);  // radiance is not negative (the mean is restored below)
+            // Not beyond the colours the model was fitted on (a linear model extrapolated past its
+            // data bled a lamp's radiance into the ceiling beside it), and not negative.
+            pv[n][ch] = std::max(std::min(std::max(v, m.lo[ch]), m.hi[ch]), 0.f);
             const float d = pv[n][ch] - other.plane(ch)[at];
             disagree += d * d / (2 * other.plane(3 + ch)[at] + 18 * guide.plane(3 + ch)[at] + 1e-6f);
           }
@@ -504,6 +532,10 @@ std::vector<Vec3f> denoiseQuality(const DenoiseInput& in, const NoisyImage& imag
 struct FastParams {
   int iterations = 5;  // steps 1, 2, 4, 8, 16: a reach of 31 pixels
   float sigmaLuminance = 4, sigmaDepth = 1, normalPower = 64;
+  // Albedo edges stop the filter too: dividing by the albedo makes a dark channel's irradiance
+  // large (a colour-mapped cap of albedo 0.005 in green), and mixed into a neighbour of another
+  // albedo it came back 20x too bright (ct_chest_cut, relMSE rising with spp).
+  float sigmaAlbedo = 0.05f;
 };
 
 // The variance the weights read (plane 4): plane 3 blurred 3x3 over valid pixels (SVGF, section
@@ -537,10 +569,13 @@ void blurVarianceRow(int y, const Planes& geo, Planes& src) {
     const float* __restrict invZ, const float* __restrict qn0, const float* __restrict qn1,
     const float* __restrict qn2, const float* __restrict qhn, const float* __restrict qz,
     const float* __restrict ql, const float* __restrict qv, const float* __restrict qr, const float* __restrict qg,
-    const float* __restrict qb, const float* __restrict qvar, float* __restrict s0, float* __restrict s1,
-    float* __restrict s2, float* __restrict ws, float* __restrict vs) {
+    const float* __restrict qb, const float* __restrict qvar, const float* __restrict a0,
+    const float* __restrict a1, const float* __restrict a2, const float* __restrict qa0, const float* __restrict qa1,
+    const float* __restrict qa2, float invAlbedo, float* __restrict s0, float* __restrict s1, float* __restrict s2,
+    float* __restrict ws, float* __restrict vs) {
   for (int x = 0; x < w; ++x) {
-    const float d = std::fabs(lum[x] - ql[x]) * invL[x] + std::fabs(z[x] - qz[x]) * invZ[x];
+    const float d = std::fabs(lum[x] - ql[x]) * invL[x] + std::fabs(z[x] - qz[x]) * invZ[x] +
+                    (std::fabs(a0[x] - qa0[x]) + std::fabs(a1[x] - qa1[x]) + std::fabs(a2[x] - qa2[x])) * invAlbedo;
     // Normals alike (or background meeting background: neither has one).
     const float dot = std::max(0.f, n0[x] * qn0[x] + n1[x] * qn1[x] + n2[x] * qn2[x]);
     const float c = dot * hn[x] * qhn[x] + (1 - hn[x]) * (1 - qhn[x]);
@@ -560,9 +595,11 @@ void blurVarianceRow(int y, const Planes& geo, Planes& src) {
 }
 
 ISO_DENOISE_CLONES
-void atrousRow(int y, int step, const Planes& src, const Planes& geo, const FastParams& fp, Planes& dst) {
+void atrousRow(int y, int step, const Planes& src, const Planes& geo, const Planes& feat, const FastParams& fp,
+               Planes& dst) {
   // src planes: 0-2 irradiance, 3 luminance variance, 4 its blur (for the weights), 5 luminance.
-  // geo planes: 0-2 unit normal, 3 has-normal, 4 depth, 5 depth gradient, 6 valid.
+  // geo planes: 0-2 unit normal, 3 has-normal, 4 depth, 5 depth gradient, 6 valid; feat: the
+  // features (0-2 albedo), laid out alike.
   static constexpr float kKernel[3] = {0.25f, 0.5f, 0.25f};
   const int w = src.width;
   thread_local std::vector<float> acc;
@@ -589,7 +626,9 @@ void atrousRow(int y, int step, const Planes& src, const Planes& geo, const Fast
       const float* __restrict invZ = std::abs(dx) + std::abs(dy) == 2 ? invZ2 : invZ1;
       atrousTap(w, h, n0, n1, n2, hn, z, lum, invL, invZ, n0 + off, n1 + off, n2 + off, hn + off, z + off, lum + off,
                 geo.plane(6) + base + off, src.plane(0) + base + off, src.plane(1) + base + off,
-                src.plane(2) + base + off, src.plane(3) + base + off, s0, s1, s2, ws, vs);
+                src.plane(2) + base + off, src.plane(3) + base + off, feat.plane(0) + base, feat.plane(1) + base,
+                feat.plane(2) + base, feat.plane(0) + base + off, feat.plane(1) + base + off, feat.plane(2) + base + off,
+                1.f / (3 * fp.sigmaAlbedo), s0, s1, s2, ws, vs);
     }
   float *r = dst.plane(0) + base, *g = dst.plane(1) + base, *b = dst.plane(2) + base, *v = dst.plane(3) + base,
         *l = dst.plane(5) + base;
@@ -613,7 +652,7 @@ std::vector<Vec3f> denoiseFast(const DenoiseInput& in, const NoisyImage& image, 
   // luminance and the luminance's variance (channels move together: their deviations add).
   auto demodulator = [&](int c, size_t o) {
     const float al = F.plane(c)[o];
-    return al > 1e-3f ? al : 1.f;
+    return al > 1e-3f ? std::max(al, 0.05f) : 1.f;
   };
   Planes src, dst, geo;
   src.init(p.width, p.height, pad, 6);
@@ -685,7 +724,7 @@ std::vector<Vec3f> denoiseFast(const DenoiseInput& in, const NoisyImage& image, 
     // pixel's.
     parallelRows(p.height, [&](int y) { blurVarianceRow(y, geo, src); });
     const int step = 1 << it;
-    parallelRows(p.height, [&](int y) { atrousRow(y, step, src, geo, fp, dst); });
+    parallelRows(p.height, [&](int y) { atrousRow(y, step, src, geo, F, fp, dst); });
     std::swap(src, dst);
   }
   std::vector<Vec3f> out(in.pixels());
