@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <initializer_list>
 #include <memory>
 
 // The hot loops are written lane by lane over rows (no reductions across a loop), so that the
@@ -196,41 +197,42 @@ void colourPlanes(const Prepared& p, const std::vector<Vec3f>& colour, const std
   });
 }
 
-// Where a pixel has a single sample its variance is unknown (0): it is replaced by the spread of
-// the colour over the 7x7 pixels around it (a pessimistic estimate: edges count as noise).
-void fillUnknownVariance(const Prepared& p, const std::vector<float>& samples, Planes& colour) {
+// Where a pixel has a single sample its variance is unknown (0): each variance plane
+// `pairs[k].second` gets the spread of its value plane `pairs[k].first` over the 7x7 valid pixels
+// around (a pessimistic estimate: edges count as noise). `planes` is laid out as the features.
+void fillUnknownVariance(const Prepared& p, const std::vector<float>& samples, Planes& planes,
+                         std::initializer_list<std::pair<int, int>> pairs) {
   const float* valid = p.features.plane(Prepared::kValid);
   bool any = false;
   for (float s : samples) any = any || s < 2;
   if (!any) return;
-  std::vector<float> estimate(size_t(p.width) * size_t(p.height) * 3, 0.f);
+  const size_t count = pairs.size();
+  std::vector<float> estimate(size_t(p.width) * size_t(p.height) * count, 0.f);
   parallelRows(p.height, [&](int y) {
     for (int x = 0; x < p.width; ++x) {
-      if (samples[size_t(y) * size_t(p.width) + size_t(x)] >= 2) continue;
-      double s[3] = {0, 0, 0}, s2[3] = {0, 0, 0};
-      int n = 0;
-      for (int dy = -3; dy <= 3; ++dy)
-        for (int dx = -3; dx <= 3; ++dx) {
-          const int qx = x + dx, qy = y + dy;
-          if (qx < 0 || qy < 0 || qx >= p.width || qy >= p.height || valid[p.features.at(qx, qy)] == 0) continue;
-          const size_t q = colour.at(qx, qy);
-          for (int c = 0; c < 3; ++c) {
-            const double v = colour.plane(c)[q];
-            s[c] += v;
-            s2[c] += v * v;
+      const size_t i = size_t(y) * size_t(p.width) + size_t(x);
+      if (samples[i] >= 2) continue;
+      size_t k = 0;
+      for (const auto& [value, variance] : pairs) {
+        double s = 0, s2 = 0;
+        int n = 0;
+        for (int dy = -3; dy <= 3; ++dy)
+          for (int dx = -3; dx <= 3; ++dx) {
+            const size_t q = planes.at(x + dx, y + dy);
+            if (valid[q] == 0) continue;  // (the border is not valid)
+            const double v = planes.plane(value)[q];
+            s += v, s2 += v * v, ++n;
           }
-          ++n;
-        }
-      for (int c = 0; c < 3; ++c)
-        estimate[(size_t(y) * size_t(p.width) + size_t(x)) * 3 + size_t(c)] =
-            n > 1 ? float(std::max(0.0, s2[c] / n - (s[c] / n) * (s[c] / n))) : 0.f;
+        estimate[i * count + k++] = n > 1 ? float(std::max(0.0, s2 / n - (s / n) * (s / n))) : 0.f;
+      }
     }
   });
   for (int y = 0; y < p.height; ++y)
     for (int x = 0; x < p.width; ++x) {
-      if (samples[size_t(y) * size_t(p.width) + size_t(x)] >= 2) continue;
-      for (int c = 0; c < 3; ++c)
-        colour.plane(3 + c)[colour.at(x, y)] = estimate[(size_t(y) * size_t(p.width) + size_t(x)) * 3 + size_t(c)];
+      const size_t i = size_t(y) * size_t(p.width) + size_t(x);
+      if (samples[i] >= 2) continue;
+      size_t k = 0;
+      for (const auto& pair : pairs) planes.plane(pair.second)[planes.at(x, y)] = estimate[i * count + k++];
     }
 }
 
@@ -516,8 +518,8 @@ std::vector<Vec3f> denoiseQuality(const DenoiseInput& in, const NoisyImage& imag
   Planes A, B, guideA, guideB;
   colourPlanes(p, image.a, image.variance, 2.f, p.features.pad, A);
   colourPlanes(p, image.b, image.variance, 2.f, p.features.pad, B);
-  fillUnknownVariance(p, samples, A);
-  fillUnknownVariance(p, samples, B);
+  fillUnknownVariance(p, samples, A, {{0, 3}, {1, 4}, {2, 5}});
+  fillUnknownVariance(p, samples, B, {{0, 3}, {1, 4}, {2, 5}});
   boxGuide(p, A, p.features.pad, guideA);
   boxGuide(p, B, p.features.pad, guideB);
   const std::vector<Vec3f> fa = filterHalf(p, A, guideB, B, q);
@@ -531,7 +533,7 @@ std::vector<Vec3f> denoiseQuality(const DenoiseInput& in, const NoisyImage& imag
 
 struct FastParams {
   int iterations = 5;  // steps 1, 2, 4, 8, 16: a reach of 31 pixels
-  float sigmaLuminance = 4, sigmaDepth = 1, normalPower = 64;
+  float sigmaLuminance = 4, sigmaDepth = 1;  // (normals: the cosine to the 64th, by squaring)
   // Albedo edges stop the filter too: dividing by the albedo makes a dark channel's irradiance
   // large (a colour-mapped cap of albedo 0.005 in green), and mixed into a neighbour of another
   // albedo it came back 20x too bright (ct_chest_cut, relMSE rising with spp).
@@ -679,31 +681,8 @@ std::vector<Vec3f> denoiseFast(const DenoiseInput& in, const NoisyImage& image, 
       geo.plane(6)[o] = 1;
     }
   });
-  // One sample: no variance of its own; the spread of the luminance over the 7x7 pixels around.
-  bool unknown = false;
-  for (float n : samples) unknown = unknown || n < 2;
-  if (unknown) {
-    std::vector<float> estimate(in.pixels(), 0.f);
-    parallelRows(p.height, [&](int y) {
-      for (int x = 0; x < p.width; ++x) {
-        if (samples[size_t(y) * size_t(p.width) + size_t(x)] >= 2) continue;
-        double s = 0, s2 = 0;
-        int n = 0;
-        for (int dy = -3; dy <= 3; ++dy)
-          for (int dx = -3; dx <= 3; ++dx) {
-            const size_t q = F.at(x + dx, y + dy);
-            if (valid[q] == 0) continue;  // (the border is not valid)
-            const double v = src.plane(5)[q];
-            s += v, s2 += v * v, ++n;
-          }
-        estimate[size_t(y) * size_t(p.width) + size_t(x)] = n > 1 ? float(std::max(0.0, s2 / n - (s / n) * (s / n))) : 0.f;
-      }
-    });
-    for (int y = 0; y < p.height; ++y)
-      for (int x = 0; x < p.width; ++x)
-        if (samples[size_t(y) * size_t(p.width) + size_t(x)] < 2)
-          src.plane(3)[F.at(x, y)] = estimate[size_t(y) * size_t(p.width) + size_t(x)];
-  }
+  // One sample: no variance of its own; the spread of the luminance around instead.
+  fillUnknownVariance(p, samples, src, {{5, 3}});
   // Depth gradient per pixel (the larger difference to a valid neighbour).
   parallelRows(p.height, [&](int y) {
     for (int x = 0; x < p.width; ++x) {
