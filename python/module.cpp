@@ -360,11 +360,7 @@ void applyOptions(const py::dict& o, SceneDesc& scene, RenderOptions& options) {
     if (!(c >= 0 && c <= 1e30)) throw InputError("isotrace.render", "clamp", "expected a radiance >= 0 (0: off)");
     s.clampIndirect = c;
   }
-  options.rayFlow = s.rayFlow;
-  options.spp = s.spp;
-  options.seed = s.seed;
-  options.threads = s.threads;
-  options.noiseThreshold = s.noiseThreshold;
+  options = renderOptions(s);
   if (py::object v = get("aovs"); !v.is_none()) {
     for (const py::handle item : v) {
       const std::string name = py::str(item);

@@ -343,13 +343,9 @@ RenderSetup prepareRender(const RenderFlags& flags) {
     if (!coloured) throw InputError("--colorbar", "", "the scene colours nothing by data (no \"color_by\", \"cap_color_by\" or slice)");
   }
   const RenderSettings& s = r.scene.settings;
-  r.options.rayFlow = s.rayFlow;
-  r.options.spp = s.spp;
-  r.options.seed = s.seed;
-  r.options.threads = s.threads;
+  r.options = renderOptions(s);
   r.options.aovs = parseAovs(flags.aov, r.output);
   r.options.alpha = flags.alpha;
-  r.options.noiseThreshold = s.noiseThreshold;
   r.options.progress = !flags.quiet && isatty(2);
   for (int f : {0, r.seq.frames - 1}) {  // the first and last names: the same folder, other digits
     const std::string name = r.seq.name(r.output, f);

@@ -1,4 +1,5 @@
 #include "renderer/distributed.h"
+#include "renderer/wavefront.h"
 
 #include <mpi.h>
 #include <tbb/blocked_range.h>
@@ -471,7 +472,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     if (doneRanks == size - 1) outbox.drain();
     result.counters = workers.join();
     result.seconds = since(start);
-    if (figures) *figures = {piecesOf, busyOf, {}, {}, {}, {}};
+    if (figures) *figures = RankFigures{piecesOf, busyOf, {}, {}, {}, {}, {}};
     if (doneRanks == size - 1) {
       RayCounters total;
       sendCounters(result.counters, total, 0);
@@ -542,11 +543,8 @@ constexpr int kAsk = 16;
 // ranks: this rank's rays and what is known of them so far, and the rays the other ranks asked of
 // this rank in the same stage.
 struct Flight {
-  bool shadow = false;
-  std::vector<Ray> rays;
-  std::vector<Hit> hits;
-  std::vector<char> found;  // a hit found (closest-hit rays), the ray blocked (shadow rays)
-  std::vector<int> from;    // the rank whose hit `hits` holds
+  RayBatch batch;        // this rank's rays (a Wave's stage)
+  std::vector<int> from;  // the rank whose hit batch.hits holds
   std::vector<Ray> theirs;  // the rays other ranks sent here, and where they came from
   std::vector<int> theirIndex, theirRank;
   std::vector<std::vector<char>> asks, backs;  // this rank's messages, by rank, being written
@@ -582,43 +580,28 @@ class RankTracer {
     }
   }
 
-  // Step 1: this rank traces f.rays whole and sends each to the other ranks whose volume box its
+  // Step 1: this rank traces its batch whole and sends each to the other ranks whose volume box its
   // segment reaches: a shadow ray only if nothing here blocks it; a closest-hit ray that hit here
   // shortened to two cell diagonals past the hit. (The others need only look before the hit, but
   // their walks must cut the ray's cells where the single process cuts them, at the ray's end, or
   // a hit's bits could change: no cell of a closer hit reaches that far, and they hold no brick the
-  // shortened ray does not reach either way.) `coherent` (camera rays, a pixel's samples next to
-  // each other): traced in Embree packets of World::kPacket (the same hits as one at a time), as
-  // one process does. `more`: whether this rank's round still has paths asking for rays (sent with
-  // a shadow stage's rays; the round ends when no rank's has).
-  void ask(Flight& f, int slot, bool more, bool coherent, TraversalStats& stats) {
-    const size_t n = f.rays.size();
-    f.hits.assign(n, Hit());
-    f.found.assign(n, 0);
+  // shortened ray does not reach either way.) Camera rays go in the batch's packets, as in one
+  // process. `more`: whether this rank's round still has paths asking for rays (sent with a shadow
+  // stage's rays; the round ends when no rank's has).
+  void ask(Flight& f, int slot, bool more, TraversalStats& stats) {
+    RayBatch& b = f.batch;
+    const size_t n = b.size();
     f.from.assign(n, m_rank);
-    if (f.shadow) {
-      parallel(n, stats, [&](size_t i, TraversalStats& s) { f.found[i] = m_world.occluded(f.rays[i], s) ? 1 : 0; });
-    } else if (coherent) {
-      const size_t packets = (n + World::kPacket - 1) / World::kPacket;
-      parallel(packets, stats, [&](size_t k, TraversalStats& s) {
-        const size_t i = k * World::kPacket;
-        const int m = int(std::min<size_t>(World::kPacket, n - i));
-        bool hit[World::kPacket];
-        m_world.intersectPacket(&f.rays[i], m, &f.hits[i], hit, s);
-        for (int j = 0; j < m; ++j) f.found[i + size_t(j)] = hit[j] ? 1 : 0;
-      });
-    } else {
-      parallel(n, stats, [&](size_t i, TraversalStats& s) { f.found[i] = m_world.intersect(f.rays[i], f.hits[i], s) ? 1 : 0; });
-    }
+    parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
     f.asks.resize(size_t(m_ranks));
     const int32_t header[2] = {more ? 1 : 0, 0};
     for (std::vector<char>& bytes : f.asks) bytes.assign(reinterpret_cast<const char*>(header), reinterpret_cast<const char*>(header + 2));
     for (size_t i = 0; i < n; ++i) {
-      if (f.shadow && f.found[i]) continue;
-      Asked a{f.rays[i], int(i)};
-      if (!f.shadow && f.found[i]) {
+      if (b.shadow && b.found[i]) continue;
+      Asked a{b.rays[i], int(i)};
+      if (!b.shadow && b.found[i]) {
         const float reach = float(2 * m_cell / double(length(a.ray.dir)));
-        a.ray.tfar = std::min(a.ray.tfar, std::nextafter(f.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
+        a.ray.tfar = std::min(a.ray.tfar, std::nextafter(b.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
       }
       for (int q = 0; q < m_ranks; ++q)
         if (q != m_rank && reaches(a.ray, q)) {
@@ -655,14 +638,15 @@ class RankTracer {
         f.theirRank.push_back(q);
       }
     }
-    if (f.shadow && !any) return false;
+    const bool shadow = f.batch.shadow;
+    if (shadow && !any) return false;
     raysReceived += double(f.theirs.size());
     std::vector<Found> answers(f.theirs.size());
     parallel(f.theirs.size(), stats, [&](size_t k, TraversalStats& s) {
       Ray r = f.theirs[k];
       r.mask = World::kVolumeMask;
       answers[k].index = f.theirIndex[k];
-      answers[k].found = f.shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
+      answers[k].found = shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
     });
     // Back to the rank that asked: the hits found with the index of the ray in its flight (a
     // shadow ray: the index alone, of the rays found blocked).
@@ -671,7 +655,7 @@ class RankTracer {
     for (size_t k = 0; k < answers.size(); ++k) {
       if (!answers[k].found) continue;
       std::vector<char>& bytes = f.backs[size_t(f.theirRank[k])];
-      if (f.shadow)
+      if (shadow)
         append(bytes, answers[k].index);
       else
         append(bytes, answers[k]);
@@ -681,28 +665,30 @@ class RankTracer {
     return true;
   }
 
-  // Step 3: the other ranks' answers. Then f.found and f.hits are those of the whole scene: the
-  // closest hit, of equal ones the lowest rank's; a shadow ray blocked if any rank blocks it.
+  // Step 3: the other ranks' answers. Then the batch's found and hits are those of the whole
+  // scene: the closest hit, of equal ones the lowest rank's; a shadow ray blocked if any rank
+  // blocks it.
   void gather(Flight& f, int slot) {
-    const size_t n = f.rays.size();
+    RayBatch& b = f.batch;
+    const size_t n = b.size();
     for (int q = 0; q < m_ranks; ++q) {
       if (q == m_rank) continue;
       const std::vector<char> bytes = receiveFrom(q, kAsk + 1 + 2 * slot);
-      const size_t size = f.shadow ? sizeof(int) : sizeof(Found);
+      const size_t size = b.shadow ? sizeof(int) : sizeof(Found);
       if (bytes.size() % size != 0) MPI_Abort(MPI_COMM_WORLD, 1);
       for (size_t at = 0; at < bytes.size(); at += size) {
         Found a;
-        if (f.shadow)
+        if (b.shadow)
           std::memcpy(&a.index, bytes.data() + at, sizeof(int));
         else
           std::memcpy(static_cast<void*>(&a), bytes.data() + at, sizeof(Found));
         const size_t i = size_t(a.index);
         if (a.index < 0 || i >= n) MPI_Abort(MPI_COMM_WORLD, 1);
-        if (f.shadow) {
-          f.found[i] = 1;
-        } else if (!f.found[i] || a.hit.t < f.hits[i].t || (a.hit.t == f.hits[i].t && q < f.from[i])) {
-          f.hits[i] = a.hit;
-          f.found[i] = 1;
+        if (b.shadow) {
+          b.found[i] = 1;
+        } else if (!b.found[i] || a.hit.t < b.hits[i].t || (a.hit.t == b.hits[i].t && q < f.from[i])) {
+          b.hits[i] = a.hit;
+          b.found[i] = 1;
           f.from[i] = q;
         }
       }
@@ -863,18 +849,16 @@ class RankTracer {
   Outbox m_outbox;
 };
 
-// A round of paths: a pass's samples of a run of this rank's pixels, in one slot of the pipeline.
-// Its next step: start (the slot's next round, if any, and its camera rays), answer (the other
-// ranks' rays of its flight), gather (their answers, then the paths' next stage); idle when the
-// slot has no more rounds in the pass.
+// A round of paths: a pass's samples of a run of this rank's pixels (a Wave), in one slot of the
+// pipeline. Its next step: start (the slot's next round, if any, and its camera rays), answer (the
+// other ranks' rays of its flight), gather (their answers, then the paths' next stage); idle when
+// the slot has no more rounds in the pass.
 struct Round {
   enum Step { kStart, kAnswer, kGather, kIdle } step = kIdle;
   size_t index = 0;       // of the round in the pass: slot k takes rounds k, k + kSlots, ...
-  bool camera = false;    // in its first stage
   bool more = false;      // paths still asking for rays (this rank's)
   size_t p0 = 0, p1 = 0;  // its pixels, of this rank's
-  std::vector<PathState> paths;
-  std::vector<size_t> asking;  // the paths whose rays the flight holds, in its order
+  Wave wave;
   Flight flight;
 };
 
@@ -890,45 +874,29 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   RankTracer tracer(world, arena, rank, ranks);
   tbb::enumerable_thread_specific<RayCounters> counters;
   RayCounters traced;  // the traversal of the rays this rank traced and answered
-  // The tiles this rank rendered, and their sums (pixel (x0, y0) first, rows of the tile's width).
+  // The tiles this rank rendered, and their sums (in packet order, forEachPixelInPacketOrder).
   std::vector<int> mine;
   std::vector<PixelSums> sums;
-  std::vector<std::pair<int, int>> pixels;  // this rank's pixels (x, y), tile by tile; sums alike
+  std::vector<Wave::Pixel> pixels;  // this rank's pixels (x, y), tile by tile; sums alike
   const std::vector<int> owner = tracer.tileOwners(tiles, camera);
   for (int tile = 0; tile < tiles.tiles(); ++tile) {
     if (owner[size_t(tile)] != rank) continue;
-    const TileRenderer::Rect r = tiles.rect(tile);
     mine.push_back(tile);
-    for (int y = r.y0; y < r.y1; ++y)
-      for (int x = r.x0; x < r.x1; ++x) pixels.emplace_back(x, y);
+    forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { pixels.emplace_back(x, y); });
   }
   sums.resize(pixels.size());
-  // stage(path, k, counters) for each path of the round that asked for the k-th ray of its flight.
-  auto eachAsking = [&](Round& round, auto&& stage) {
+  // The answers to the round's stage, to its paths, on this rank's threads.
+  auto deliver = [&](Round& round) {
+    const RayBatch& b = round.flight.batch;
     arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, round.asking.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
-        RayCounters& c = counters.local();
-        for (size_t k = r.begin(); k < r.end(); ++k) stage(round.paths[round.asking[k]], k, c);
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, b.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        round.wave.deliver(b, r.begin(), r.end(), counters.local());
       });
     });
   };
-  // The rays the round's paths asked for (shadow rays or the others) into its flight.
-  auto collect = [&](Round& round, bool shadow) {
-    Flight& f = round.flight;
-    f.shadow = shadow;
-    round.asking.clear();
-    f.rays.clear();
-    for (size_t i = 0; i < round.paths.size(); ++i) {
-      PathState& p = round.paths[i];
-      if (shadow ? !p.shadowing : !p.tracing) continue;
-      (shadow ? p.shadowing : p.tracing) = false;
-      round.asking.push_back(i);
-      f.rays.push_back(shadow ? p.shadow : p.ray);
-    }
-  };
-  // The wavefront flow's stages (TileRenderer::renderPassWavefront) for rounds of paths: camera
-  // rays, then shadow rays and continuation rays, until no path of the round on any rank asks for
-  // one. A pass goes through this rank's pixels in rounds of kPathsPerRound paths (as many rounds
+  // The wavefront flow's stages (a Wave's, as TileRenderer::renderPassWavefront takes them) for
+  // rounds of paths: camera rays, then shadow rays and continuation rays, until no path of the
+  // round on any rank asks for one. A pass goes through this rank's pixels in rounds of kPathsPerRound paths (as many rounds
   // on every rank: the busiest one's), kSlots rounds in flight: a rank takes the next step of any
   // slot whose messages have come, so that while the other ranks answer one round's rays it traces
   // another's. All tiles take a pass (1, 1, 2, 4, 8, 16, 16, ... samples, as in one process) before
@@ -948,46 +916,22 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       slots[size_t(k)].step = Round::kStart;
       slots[size_t(k)].index = size_t(k);
     }
-    // Each pixel's samples in sample order.
     auto finish = [&](Round& round) {
-      for (size_t pixel = round.p0; pixel < round.p1; ++pixel)
-        for (int s = 0; s < ns; ++s) {
-          PathState& p = round.paths[(pixel - round.p0) * size_t(ns) + size_t(s)];
-          integrator.finish(p);
-          addSample(sums[pixel], p.out, options.alpha);
-        }
+      round.wave.finish([&](size_t i) -> PixelSums& { return sums[round.p0 + i]; });
     };
     auto begin = [&](Round& round) {
       round.p0 = std::min(pixels.size(), round.index * maxPixels);
       round.p1 = std::min(pixels.size(), round.p0 + maxPixels);
-      round.paths.resize((round.p1 - round.p0) * size_t(ns));
-      for (size_t pixel = round.p0; pixel < round.p1; ++pixel)
-        for (int s = s0; s < s1; ++s) {
-          const auto [x, y] = pixels[pixel];
-          PathState& p = round.paths[(pixel - round.p0) * size_t(ns) + size_t(s - s0)];
-          Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
-          const float jx = sampler.next(), jy = sampler.next();
-          p.begin(camera.generateRay(x + jx, y + jy), sampler);
-          integrator.start(p);
-        }
-      round.camera = true;
-      collect(round, false);
+      round.wave.start(camera, integrator, options, pixels.data() + round.p0, round.p1 - round.p0, s0, s1);
+      round.wave.collect(round.flight.batch);
     };
     // The answers to the round's last stage, then its next stage: shadow rays after closest-hit
     // rays (or the round's end: see RankTracer::answer), closest-hit rays after shadow rays.
     auto advance = [&](Round& round, int slot) {
-      Flight& f = round.flight;
-      tracer.gather(f, slot);
-      if (f.shadow) {
-        eachAsking(round, [&](PathState& p, size_t k, RayCounters&) { integrator.afterShadow(p, f.found[k] != 0); });
-        collect(round, false);
-        return;
-      }
-      eachAsking(round, [&](PathState& p, size_t k, RayCounters& c) { integrator.afterTrace(p, f.found[k] != 0, f.hits[k], c); });
-      round.camera = false;
-      round.more = false;
-      for (const PathState& p : round.paths) round.more = round.more || p.tracing || p.shadowing;
-      collect(round, true);
+      tracer.gather(round.flight, slot);
+      deliver(round);
+      if (!round.flight.batch.shadow) round.more = round.wave.pending();
+      round.wave.collect(round.flight.batch);
     };
     for (;;) {
       const auto look = Clock::now();
@@ -1018,7 +962,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
           advance(round, k);
         }
         stepped = true;
-        tracer.ask(round.flight, k, round.more, round.camera, traced.traversal);
+        tracer.ask(round.flight, k, round.more, traced.traversal);
         round.step = Round::kAnswer;
       }
       if (!open) break;
@@ -1041,11 +985,8 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   constexpr size_t kChunk = (size_t(64) << 20) / sizeof(PixelSums);
   std::vector<PixelSums> frame(rank == 0 ? size_t(w) * size_t(h) : 0);
   auto place = [&](const std::vector<int>& ids, auto&& next) {  // next(): the next pixel's sums
-    for (int tile : ids) {
-      const TileRenderer::Rect r = tiles.rect(tile);
-      for (int y = r.y0; y < r.y1; ++y)
-        for (int x = r.x0; x < r.x1; ++x) frame[size_t(y) * size_t(w) + size_t(x)] = next();
-    }
+    for (int tile : ids)
+      forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { frame[size_t(y) * size_t(w) + size_t(x)] = next(); });
   };
   if (rank == 0) {
     size_t at = 0;

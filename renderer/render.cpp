@@ -1,5 +1,7 @@
 #include "renderer/render.h"
 
+#include "renderer/wavefront.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -56,15 +58,26 @@ bool TileRenderer::converges(const PixelSums& p) const {
   return std::sqrt(variance / n) <= m_options.noiseThreshold * std::max(mean, 0.01);
 }
 
+RenderOptions renderOptions(const RenderSettings& settings) {
+  RenderOptions o;
+  o.rayFlow = settings.rayFlow;
+  o.spp = settings.spp;
+  o.seed = settings.seed;
+  o.threads = settings.threads;
+  o.noiseThreshold = settings.noiseThreshold;
+  return o;
+}
+
 namespace {
 
-// The paths of one tile's pass, reused from pass to pass by each thread: at most kTile^2 pixels
-// x 16 samples (the largest pass) = 4,096 paths of 304 bytes, 1.2 MiB, whatever the image size.
-struct Wavefront {
-  std::vector<PathState> paths;
-  std::vector<std::pair<int, int>> pixels;  // the open pixels (x, y)
+// Each thread's wave and batch, reused from tile to tile: at most kTile^2 pixels x 16 samples
+// (the largest pass) = 4,096 paths, whatever the image size.
+struct TileWave {
+  Wave wave;
+  RayBatch batch;
+  std::vector<Wave::Pixel> pixels;  // the tile's open pixels, in packet order
 };
-thread_local Wavefront t_wavefront;
+thread_local TileWave t_wave;
 
 }  // namespace
 
@@ -96,92 +109,30 @@ uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums
   return taken;
 }
 
-// The wavefront flow: every open pixel's samples [s0, s1) of the tile are paths in flight. Camera
-// rays go to Embree in 4x2 pixel packets of one sample index (rtcIntersect8: the iso-surfaces'
-// bricks are walked by the packet's lanes together); then, until no path asks for a ray, the
-// shadow rays of all paths are traced, then their next rays. The integrator's stages do the
-// rest, path by path, in the order Li would.
+// The wavefront flow: every open pixel's samples [s0, s1) of the tile are the paths of a Wave,
+// traced stage by stage against the World: camera rays in Embree packets of 4x2 pixels of one
+// sample (rtcIntersect8: the iso-surfaces' bricks are walked by the packet's lanes together), then
+// shadow rays and continuation rays one at a time: they are incoherent (bounces, lights sampled
+// anywhere), and Embree's packets lose on them (docs/BENCHMARKS.md, "Rays in queues, traced in
+// packets").
 uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
                                            RayCounters& counters) const {
-  Wavefront& wf = t_wavefront;
+  TileWave& t = t_wave;
+  auto sumsAt = [&](int x, int y) -> PixelSums& { return sums[size_t(y - r.y0) * stride + size_t(x - r.x0)]; };
+  t.pixels.clear();
+  forEachPixelInPacketOrder(r, [&](int x, int y) {
+    if (!sumsAt(x, y).converged) t.pixels.emplace_back(x, y);
+  });
+  if (t.pixels.empty()) return 0;
+  t.wave.start(m_camera, m_integrator, m_options, t.pixels.data(), t.pixels.size(), s0, s1);
   const World& world = m_integrator.world();
-  wf.pixels.clear();
-  for (int y = r.y0; y < r.y1; ++y)
-    for (int x = r.x0; x < r.x1; ++x)
-      if (!sums[size_t(y - r.y0) * stride + size_t(x - r.x0)].converged) wf.pixels.emplace_back(x, y);
-  const int ns = s1 - s0;
-  const size_t count = wf.pixels.size() * size_t(ns);
-  if (count == 0) return 0;
-  if (wf.paths.size() < count) wf.paths.resize(count);  // reset path by path (PathState::begin)
-  // The open pixels' index in wf.pixels by position in the tile (-1: converged).
-  int slot[kTile][kTile];
-  for (auto& row : slot) std::fill(std::begin(row), std::end(row), -1);
-  for (size_t i = 0; i < wf.pixels.size(); ++i) slot[wf.pixels[i].second - r.y0][wf.pixels[i].first - r.x0] = int(i);
-
-  Ray rays[World::kPacket];
-  Hit hits[World::kPacket];
-  bool found[World::kPacket];
-  int lanes[World::kPacket];
-
-  // Camera rays, 4x2 pixels of one sample index per packet.
-  for (int s = s0; s < s1; ++s)
-    for (int by = r.y0; by < r.y1; by += 2)
-      for (int bx = r.x0; bx < r.x1; bx += 4) {
-        int n = 0;
-        for (int y = by; y < std::min(by + 2, r.y1); ++y)
-          for (int x = bx; x < std::min(bx + 4, r.x1); ++x) {
-            const int pixel = slot[y - r.y0][x - r.x0];
-            if (pixel < 0) continue;
-            const int index = pixel * ns + (s - s0);
-            PathState& p = wf.paths[size_t(index)];
-            Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
-            const float jx = sampler.next(), jy = sampler.next();
-            p.begin(m_camera.generateRay(x + jx, y + jy), sampler);
-            m_integrator.start(p);
-            if (!p.tracing) continue;
-            p.tracing = false;
-            rays[n] = p.ray;
-            lanes[n++] = index;
-          }
-        if (n == 0) continue;
-        world.intersectPacket(rays, n, hits, found, counters.traversal);
-        for (int i = 0; i < n; ++i) m_integrator.afterTrace(wf.paths[size_t(lanes[i])], found[i], hits[i], counters);
-      }
-
-  // Then shadow rays and continuation rays, stage by stage, until every path is done. These
-  // are incoherent (bounces, lights sampled anywhere), and Embree's packets lose on them: traced
-  // one at a time they render faster (docs/BENCHMARKS.md, "Rays in queues, traced in packets").
-  for (;;) {
-    bool more = false;
-    for (size_t i = 0; i < count; ++i) {
-      PathState& p = wf.paths[i];
-      if (!p.shadowing) continue;
-      p.shadowing = false;
-      m_integrator.afterShadow(p, world.occluded(p.shadow, counters.traversal));
-    }
-    for (size_t i = 0; i < count; ++i) {
-      PathState& p = wf.paths[i];
-      if (!p.tracing) continue;
-      p.tracing = false;
-      Hit hit;
-      const bool found = world.intersect(p.ray, hit, counters.traversal);
-      m_integrator.afterTrace(p, found, hit, counters);
-      more = more || p.tracing || p.shadowing;
-    }
-    if (!more) break;
+  while (t.wave.pending()) {
+    t.wave.collect(t.batch);
+    traceBatch(world, t.batch, 0, t.batch.units(), counters.traversal);
+    t.wave.deliver(t.batch, 0, t.batch.size(), counters);
   }
-
-  // Sums in pixel order, each pixel's samples in sample order: the scalar flow's order.
-  for (size_t pixel = 0; pixel < wf.pixels.size(); ++pixel) {
-    const auto [px, py] = wf.pixels[pixel];
-    PixelSums& sum = sums[size_t(py - r.y0) * stride + size_t(px - r.x0)];
-    for (int s = 0; s < ns; ++s) {
-      PathState& p = wf.paths[pixel * size_t(ns) + size_t(s)];
-      m_integrator.finish(p);
-      addSample(sum, p.out, m_options.alpha);
-    }
-  }
-  return count;
+  t.wave.finish([&](size_t i) -> PixelSums& { return sumsAt(t.pixels[i].first, t.pixels[i].second); });
+  return t.wave.size();
 }
 
 bool TileRenderer::renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums,

@@ -49,6 +49,11 @@ struct RenderOptions {
   DenoiseInput* denoiseInput = nullptr;
 };
 
+// The scene's render settings as renderFrame takes them (ray flow, spp, seed, threads, adaptive
+// threshold): the one place the CLI, the view and the Python module turn settings into options;
+// each then adds what only it has (AOVs, alpha, progress, a work counter).
+RenderOptions renderOptions(const RenderSettings& settings);
+
 struct RenderResult {
   RayCounters counters;
   double seconds = 0;

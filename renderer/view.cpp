@@ -558,10 +558,11 @@ void ViewSession::run() {
       integrator = makeIntegrator(desc.settings.integrator, *world, desc.settings);
       cameraDesc = cameraOf(desc, *world);
       camera = std::make_unique<Camera>(cameraDesc, m_width, m_height);
-      options = RenderOptions();
-      options.rayFlow = desc.settings.rayFlow;
-      options.spp = desc.settings.spp;
-      options.seed = desc.settings.seed;
+      // The view refines every pixel pass by pass up to spp on its own threads (--threads):
+      // no adaptive stop, and the scene's thread count is the batch render's.
+      options = renderOptions(desc.settings);
+      options.threads = m_options.threads;
+      options.noiseThreshold = 0;
       sums.assign(size_t(m_width) * m_height, PixelSums());
       pass = 0;
       s0 = 0;
