@@ -81,7 +81,9 @@ thread_local TileWave t_wave;
 
 }  // namespace
 
-uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
+// Never inlined: bench/iso_vs_mesh.py --instructions and the callgrind breakdowns in
+// docs/BENCHMARKS.md count instructions inside this function (one tile's pass, either flow).
+[[gnu::noinline]] uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
                                   bool stopPerPixel) const {
   const Rect r = rect(tile);
   if (m_options.rayFlow == RayFlow::Scalar) return renderPassScalar(r, s0, s1, sums, stride, counters, stopPerPixel);

@@ -20,6 +20,8 @@
 
 namespace iso {
 
+// (A new field must be written in both branches of World::fillHit, which fills a Hit without
+// clearing it first.)
 struct Hit {
   float t = 0;
   float tError = 0;   // |t - true t| <= tError (iso-surfaces; 0 for triangles)
@@ -211,6 +213,11 @@ class World {
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
   void fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const;
+  void fillTriangleHit(const Ray& ray, const RTCRayHit& rh, const GeometryRecord& rec, Hit& hit) const;
+  // Whether `ray` can meet an iso-surface: otherwise (a scene of meshes only) it is traced without
+  // the iso-surface lane the callbacks would read. (Not by the ray's mask: no ray is mesh-only,
+  // and Embree may be built without mask tests, calling the callbacks for every lane.)
+  bool meetsIsoSurfaces(const Ray&) const { return !m_surfaces.empty(); }
   // The lanes of a packet being traced (World::packRays fills the rays Embree is to see).
   struct PacketLanes {
     LaneSlots<Ray> start;  // each ray as traced (moved onto its volume's box)

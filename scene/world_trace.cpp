@@ -206,14 +206,23 @@ bool World::intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 }
 
 bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
-  IsoRayLane lane;
-  IsoRayContext context(&lane);
-  const Vec3d origin = ray.origin();
-  setLane(ray, origin, m_surfaces, lane);
   RTCRayHit rh{};
   rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  if (!meetsIsoSurfaces(ray)) {
+    // Triangles only: no iso-surface callback reads a lane (its setup is ~80 stores a ray).
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    rtcIntersect1(m_scene, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    fillTriangleHit(ray, rh, recordOf(rh.hit), hit);
+    return true;
+  }
+  IsoRayLane lane;
+  IsoRayContext context(&lane);
+  const Vec3d origin = ray.origin();
+  setLane(ray, origin, m_surfaces, lane);
   rtcIntersect1(m_scene, &context.embree, &rh);
   stats.add(context.stats);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
@@ -238,7 +247,7 @@ bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalSta
     const Ray& start = p.start.emplace(i, startInsideVolume(rays[i]));
     done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
     if (done[i]) continue;
-    setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
+    if (meetsIsoSurfaces(start)) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
     packLane(start, i, packet);
     p.valid[i] = -1;
     any = true;
@@ -286,17 +295,32 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
 // The hit Embree found for `ray` (in `rh`), with the lane's iso-surface result.
 [[gnu::always_inline]] inline void World::fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const {
   const GeometryRecord& rec = recordOf(rh.hit);
-  hit = Hit();
-  hit.incoming = ray.dir;
+  // Every field is written, each kind its own and the other kind's defaults, instead of a clear
+  // of the whole record first (a Hit is ~170 bytes, written for every ray that hits).
   if (!rec.mesh) {
+    hit.incoming = ray.dir;
+    hit.mesh = hit.light = hit.triangle = hit.slice = -1;
+    hit.b1 = hit.b2 = 0;
+    hit.uv = Vec2f{0, 0};
+    hit.dpdu = hit.dpdv = Vec3f{0, 0, 0};
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
     fillIsoHit(ray, rec.surface, lane.t, lane.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
                lane.insideAfter, lane.cap, rec.identity ? nullptr : &rec.toWorld, hit);
     return;
   }
+  fillTriangleHit(ray, rh, rec, hit);
+}
+
+// A triangle hit: position from barycentrics with pbrt-v4's bound (Pharr et al., 6.8.5).
+[[gnu::always_inline]] inline void World::fillTriangleHit(const Ray& ray, const RTCRayHit& rh, const GeometryRecord& rec,
+                                                          Hit& hit) const {
+  hit.incoming = ray.dir;
   hit.t = rh.ray.tfar;
+  hit.tError = 0;
+  hit.surface = -1;
+  hit.spawnOffset = 0;
+  hit.insideAfter = hit.cap = false;
   hit.material = rec.material;
-  // Triangle: position from barycentrics with pbrt-v4's bound (Pharr et al., 6.8.5).
   const TriangleMesh& m = *rec.mesh;
   const unsigned prim = rh.hit.primID;
   const uint32_t i0 = m.indices[3 * prim], i1 = m.indices[3 * prim + 1], i2 = m.indices[3 * prim + 2];
@@ -388,6 +412,13 @@ bool World::intersectPastThin(const Ray& first, Hit& hit, Vec3f& T, TraversalSta
 }
 
 bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
+  if (!meetsIsoSurfaces(ray)) {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRay r = toEmbree(ray);
+    rtcOccluded1(m_scene, &context, &r);
+    return r.tfar < 0;
+  }
   IsoRayLane lane;
   IsoRayContext context(&lane);
   const Vec3d origin = ray.origin();
@@ -524,8 +555,8 @@ Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
     // Round away from the surface in float, where Embree will see it.
     Vec3f pf(po);
     for (int i = 0; i < 3; ++i) {
-      if (n[i] > 0) pf[i] = std::nextafter(pf[i], INFINITY);
-      else if (n[i] < 0) pf[i] = std::nextafter(pf[i], -INFINITY);
+      if (n[i] > 0) pf[i] = nextFloatUp(pf[i]);
+      else if (n[i] < 0) pf[i] = nextFloatDown(pf[i]);
     }
     po = Vec3d(pf);
   }

@@ -39,6 +39,27 @@ struct RandomRays {
 
 // Bricks are separate Embree primitives; the answer must not depend on where they split
 // the grid: the union of brick queries gives the whole-grid DDA's hit bit for bit.
+// The spawn offset of a triangle hit rounds its origin away from the surface with nextFloatUp and
+// nextFloatDown instead of std::nextafter: they must agree on every float, or images change.
+TEST(Vec3, NextFloatMatchesNextafter) {
+  auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0 || (std::isnan(a) && std::isnan(b)); };
+  std::vector<float> values = {0.f, -0.f, 1.f, -1.f, INFINITY, -INFINITY, std::numeric_limits<float>::max(),
+                               -std::numeric_limits<float>::max(), std::numeric_limits<float>::min(),
+                               -std::numeric_limits<float>::min(), std::numeric_limits<float>::denorm_min(),
+                               -std::numeric_limits<float>::denorm_min(), NAN};
+  std::mt19937 rng(5);
+  for (int i = 0; i < 200000; ++i) {
+    const uint32_t bits = rng();
+    float v;
+    std::memcpy(&v, &bits, sizeof v);
+    values.push_back(v);
+  }
+  for (float v : values) {
+    ASSERT_TRUE(same(nextFloatUp(v), std::nextafter(v, INFINITY))) << v;
+    ASSERT_TRUE(same(nextFloatDown(v), std::nextafter(v, -INFINITY))) << v;
+  }
+}
+
 TEST(Traversal, BricksAgreeWithTheWholeGridBitForBit) {
   const Grid grid = loadVolumeFile(test::dataPath("volumes/neghip_64x64x64_uint8.raw"));
   const BrickGrid bricks(grid);

@@ -25,7 +25,25 @@ struct CellSegment {
   // solved in double (g subtracts the iso value rounded to float, 0.97 by 2.9e-8: enough to put
   // a near-tangent pass on the wrong side of zero): exactCorners(exactCells, exactCell, exactIso, g).
   bool hasExact = false;
-  Vec3<double> exactA, exactB;
+  // The segment's ends on the exact ray are computed only for a segment solved in double
+  // (exactEnd): from the exact ray (exactOrg + t exactDir, grid coordinates), the walk's t at
+  // each end, the axis of the face each end lies on (-1: none) and its local coordinate there.
+  const Vec3<double>* exactOrg = nullptr;
+  const Vec3<double>* exactDir = nullptr;
+  int exactAxis[2] = {-1, -1};
+  double exactT[2] = {0, 0}, exactSide[2] = {0, 0};
+  // End `end` (0: s = 0, 1: s = 1) in cell-local coordinates in double, on the exact ray.
+  Vec3<double> exactEnd(int end) const {
+    const int axis = exactAxis[end];
+    const double side = exactSide[end];
+    const Vec3<double>& o = *exactOrg;
+    const Vec3<double>& d = *exactDir;
+    const double te = axis >= 0 ? (double(exactCell[axis]) + side - o[axis]) / d[axis] : exactT[end];
+    Vec3<double> p;
+    for (int a = 0; a < 3; ++a)
+      p[a] = a == axis ? side : std::clamp(o[a] + te * d[a] - double(exactCell[a]), 0.0, 1.0);
+    return p;
+  }
   void (*exactCorners)(const void* cells, const Vec3i& cell, double iso, double g[8]) = nullptr;
   const void* exactCells = nullptr;
   Vec3i exactCell;

@@ -58,8 +58,8 @@ bool firstInDouble(const CellSegment<float>& seg, Root<float>& root) {
     seg.exactCorners(seg.exactCells, seg.exactCell, seg.exactIso, wide.g);
   else
     for (int i = 0; i < 8; ++i) wide.g[i] = seg.g[i];
-  wide.a = seg.hasExact ? seg.exactA : Vec3d(seg.a);
-  wide.b = seg.hasExact ? seg.exactB : Vec3d(seg.b);
+  wide.a = seg.hasExact ? seg.exactEnd(0) : Vec3d(seg.a);
+  wide.b = seg.hasExact ? seg.exactEnd(1) : Vec3d(seg.b);
   wide.f0 = seg.f0;
   wide.f1 = seg.f1;
   const Cubic<double> cubic = cellCubic(wide);

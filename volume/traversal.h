@@ -617,13 +617,6 @@ class CellWalk {
   // grid coordinates' magnitude (and t's rounding) of the exact ones; the field's slope in a
   // cell is at most ~3.5 times the sum of |g|; plus the evaluation error.
   ISO_INLINE void exactSegment(const ExactEnds& e, int enterAxis, int leaveAxis, CellSegment<Real>& seg) const {
-    auto point = [&](int axis, Real t, Real side) {
-      const double te = axis >= 0 ? (double(m_cell[axis]) + double(side) - e.org[axis]) / e.dir[axis] : double(t);
-      Vec3d p;
-      for (int a = 0; a < 3; ++a)
-        p[a] = a == axis ? double(side) : std::clamp(e.org[a] + te * e.dir[a] - double(m_cell[a]), 0.0, 1.0);
-      return p;
-    };
     seg.hasExact = true;
     seg.exactCorners = [](const void* cells, const Vec3i& cell, double iso, double g[8]) {
       static_cast<const Cells*>(cells)->load(cell, iso, g);
@@ -631,8 +624,16 @@ class CellWalk {
     seg.exactCells = m_cells;
     seg.exactCell = m_cell;
     seg.exactIso = e.iso;
-    seg.exactA = point(enterAxis, m_ta, enterAxis >= 0 ? seg.a[enterAxis] : Real(0));
-    seg.exactB = point(leaveAxis, m_tb, leaveAxis >= 0 ? seg.b[leaveAxis] : Real(0));
+    // The ends on the exact ray: what CellSegment::exactEnd needs, not the points themselves (a
+    // segment is solved in double only where the float cubic is in doubt).
+    seg.exactOrg = &e.org;
+    seg.exactDir = &e.dir;
+    seg.exactAxis[0] = enterAxis;
+    seg.exactAxis[1] = leaveAxis;
+    seg.exactT[0] = double(m_ta);
+    seg.exactT[1] = double(m_tb);
+    seg.exactSide[0] = enterAxis >= 0 ? double(seg.a[enterAxis]) : 0.0;
+    seg.exactSide[1] = leaveAxis >= 0 ? double(seg.b[leaveAxis]) : 0.0;
     Real extent = 0;
     for (int a = 0; a < 3; ++a)
       extent = std::max(extent, std::fabs(m_ray->org[a]) + std::max(std::fabs(m_ta * m_ray->dir[a]), std::fabs(m_tb * m_ray->dir[a])));
@@ -643,10 +644,13 @@ class CellWalk {
   // times the face's corners, plus their evaluation error. The face's four corners in index
   // order, and the ray and t: the same bits in both cells of the face.
   ISO_INLINE bool faceInDoubt(Real f, const Real g[8], int axis, Real side, Real t) const {
+    // The face's corners are those whose index has `side` in bit `axis`: i0 + {0, s1, s2, s1 + s2}
+    // for the other two axes' index steps, summed in index order as a loop over all 8 would
+    // (no branch per corner: this runs at every face a walk looks at twice).
     const int bit = side == Real(1) ? 1 : 0;
-    Real corners = 0;
-    for (int i = 0; i < 8; ++i)
-      if ((i >> axis & 1) == bit) corners += std::fabs(g[i]);
+    const int i0 = bit << axis;
+    const int s1 = axis == 0 ? 2 : 1, s2 = axis == 2 ? 2 : 4;
+    const Real corners = ((std::fabs(g[i0]) + std::fabs(g[i0 + s1])) + std::fabs(g[i0 + s2])) + std::fabs(g[i0 + s1 + s2]);
     Real extent = 0;
     for (int a = 0; a < 3; ++a) extent = std::max(extent, std::fabs(m_ray->org[a]) + std::fabs(t * m_ray->dir[a]));
     return std::fabs(f) <= Real(8) * std::numeric_limits<Real>::epsilon() * (extent + Real(2)) * corners;

@@ -3,6 +3,8 @@
 // and the float fast path share one implementation.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 namespace iso {
 
@@ -51,6 +53,19 @@ template <typename T> bool isFinite(const Vec3<T>& v) {
 using Vec3f = Vec3<float>;
 using Vec3d = Vec3<double>;
 using Vec3i = Vec3<int>;
+
+// std::nextafter(v, +-infinity) without the library call (pbrt-v4's NextFloatUp/Down): the same
+// bits for every float, signed zeros and infinities included (Vec3.NextFloatMatchesNextafter).
+inline float nextFloatUp(float v) {
+  if (std::isinf(v) && v > 0) return v;
+  if (v == -0.f) v = 0.f;
+  uint32_t bits;
+  std::memcpy(&bits, &v, sizeof bits);
+  bits = v >= 0 ? bits + 1 : bits - 1;
+  std::memcpy(&v, &bits, sizeof bits);
+  return v;
+}
+inline float nextFloatDown(float v) { return -nextFloatUp(-v); }
 
 // Where the line o + t d lies in the box [lo, hi] (slabs): t in [t0, t1]; false if it misses
 // (a line parallel to a face, outside its slab, misses).
