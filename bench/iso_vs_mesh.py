@@ -36,6 +36,9 @@ import subprocess
 import sys
 import tempfile
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import stage_breakdown  # noqa: E402  (valgrind_env)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ISOTRACE = os.path.join(ROOT, "build", "isotrace")
 
@@ -125,10 +128,15 @@ COUNTED_SYMBOL = "iso::TileRenderer::renderPass(*"
 def count_instructions(scene, mode, resolution, image, work, flow=None):
     """Instructions executed inside the tiles' passes for one render (callgrind)."""
     out = os.path.join(work, "callgrind.out")
-    run(["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out,
-         "--toggle-collect=" + COUNTED_SYMBOL, RENDERER, "render", scene, "-o", image,
-         "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"] +
-        (["--ray-flow", flow] if flow else RAY_FLOW))
+    args = ["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out,
+            "--toggle-collect=" + COUNTED_SYMBOL, RENDERER, "render", scene, "-o", image,
+            "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"] + \
+        (["--ray-flow", flow] if flow else RAY_FLOW)
+    # (valgrind_env: the Highway timer stand-in valgrind needs on some CPUs, see stage_breakdown.py)
+    r = subprocess.run(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                       env=stage_breakdown.valgrind_env(RENDERER, work))
+    if r.returncode != 0:
+        sys.exit("iso_vs_mesh: %s failed:\n%s" % (" ".join(args), r.stderr))
     with open(out) as f:
         for line in f:
             if line.startswith("totals:") or line.startswith("summary:"):

@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 other=${1:?usage: bench/same_images.sh OTHER_ISOTRACE [SCENE.json ...]}
 shift
-mine=build/isotrace
+mine=${ISOTRACE:-build/isotrace}  # the build under test (ISOTRACE=... for a copy)
 scenes=("$@")
 if [ ${#scenes[@]} -eq 0 ]; then
   scenes=(bench/scenes/*.json examples/default.json examples/cornell_torus.json examples/ct_chest_cut.json

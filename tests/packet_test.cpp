@@ -281,6 +281,74 @@ TEST(Packets, PacketWalkGivesTheScalarWalksHitsOnRealVolumes) {
     }
 }
 
+// World fills a Hit without clearing it first (World::fillHit writes every field, each kind of
+// hit its own and the other kind's defaults): a record that held anything before, here every
+// field set to nonsense, must come out of a query as a fresh one does, for iso-surface and
+// triangle hits, single rays and packets, and a scene of meshes only (traced without lanes).
+TEST(Packets, HitRecordsDoNotDependOnWhatTheyHeldBefore) {
+  auto poisoned = [] {
+    Hit h;
+    h.t = -1;
+    h.tError = 7;
+    h.position = {3, 3, 3};
+    h.position64 = {4, 4, 4};
+    h.pError = {5, 5, 5};
+    h.normal = h.shading = h.dpdu = h.dpdv = h.incoming = {9, 9, 9};
+    h.uv = Vec2f{5, 5};
+    h.material = h.surface = h.mesh = h.light = h.triangle = h.slice = 99;
+    h.b1 = h.b2 = 3;
+    h.spawnOffset = 4;
+    h.insideAfter = h.cap = true;
+    return h;
+  };
+  const std::string root = ISOTRACE_SOURCE_DIR;
+  SceneDesc meshesOnly = parseSceneFile(root + "/bench/scenes/neghip.json");
+  meshesOnly.volumes.clear();
+  for (const SceneDesc& scene : {parseSceneFile(root + "/examples/default.json"), meshesOnly}) {
+    const World world(scene, IntersectorSpec{});
+    const Camera camera(world.camera(), 96, 54);
+    TraversalStats stats;
+    size_t isoHits = 0, meshHits = 0;
+    for (int y = 0; y < 54; y += 2)
+      for (int x = 0; x < 96; x += 4) {
+        Ray rays[World::kPacket];
+        for (int i = 0; i < World::kPacket; ++i) rays[i] = camera.generateRay(x + (i & 3) + 0.5f, y + (i >> 2) + 0.5f);
+        Hit fresh[World::kPacket], reused[World::kPacket];
+        bool found[World::kPacket], foundAgain[World::kPacket];
+        for (int i = 0; i < World::kPacket; ++i) {
+          found[i] = world.intersect(rays[i], fresh[i], stats);
+          reused[i] = poisoned();
+          ASSERT_EQ(world.intersect(rays[i], reused[i], stats), found[i]);
+          if (!found[i]) continue;
+          EXPECT_TRUE(sameHit(reused[i], fresh[i]));
+          EXPECT_EQ(reused[i].slice, fresh[i].slice);
+          ++(fresh[i].surface >= 0 ? isoHits : meshHits);
+          // A spawned ray's hit goes into the record of the hit it left (the integrators' way).
+          Hit chained = fresh[i], chainedFresh;
+          const Ray next = spawnRay(fresh[i], fresh[i].incoming);
+          if (world.intersect(next, chainedFresh, stats)) {
+            ASSERT_TRUE(world.intersect(next, chained, stats));
+            EXPECT_TRUE(sameHit(chained, chainedFresh));
+          }
+        }
+        for (Hit& h : reused) h = poisoned();
+        world.intersectPacket(rays, World::kPacket, reused, foundAgain, stats);
+        for (int i = 0; i < World::kPacket; ++i) {
+          ASSERT_EQ(foundAgain[i], found[i]);
+          if (found[i]) {
+            EXPECT_TRUE(sameHit(reused[i], fresh[i]));
+          }
+        }
+        if (HasFailure()) return;
+      }
+    // Both kinds of record were written over (the meshes-only scene: triangles alone).
+    EXPECT_GT(meshHits, 100u);
+    if (!scene.volumes.empty()) {
+      EXPECT_GT(isoHits, 100u);
+    }
+  }
+}
+
 // A packet holds 1 to 8 rays; anything else is a programming error, refused.
 TEST(Packets, RefusesMoreThanEightRays) {
   SceneDesc scene;
