@@ -214,10 +214,12 @@ class World {
   const GeometryRecord& recordOf(const RTCHit& hit) const;
   void fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const;
   void fillTriangleHit(const Ray& ray, const RTCRayHit& rh, const GeometryRecord& rec, Hit& hit) const;
-  // Whether `ray` can meet an iso-surface: otherwise (a scene of meshes only) it is traced without
-  // the iso-surface lane the callbacks would read. (Not by the ray's mask: no ray is mesh-only,
-  // and Embree may be built without mask tests, calling the callbacks for every lane.)
-  bool meetsIsoSurfaces(const Ray&) const { return !m_surfaces.empty(); }
+  // Whether a ray needs its lane (IsoRayLane: the world ray in double, its start class) for the
+  // callbacks Embree may call: the iso-surfaces', and the clip filter of meshes a scene clip cuts
+  // (which reads the lane's world ray). Otherwise (meshes only, unclipped) rays are traced
+  // without one. (Not decided by the ray's mask: no ray is mesh-only, and Embree may be built
+  // without mask tests, calling the callbacks for every lane.)
+  bool needsLanes() const { return !m_surfaces.empty() || !m_sceneClip.empty(); }
   // The lanes of a packet being traced (World::packRays fills the rays Embree is to see).
   struct PacketLanes {
     LaneSlots<Ray> start;  // each ray as traced (moved onto its volume's box)

@@ -210,8 +210,8 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
   rh.ray = toEmbree(ray);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-  if (!meetsIsoSurfaces(ray)) {
-    // Triangles only: no iso-surface callback reads a lane (its setup is ~80 stores a ray).
+  if (!needsLanes()) {
+    // No callback reads a lane (its setup is ~80 stores a ray).
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     rtcIntersect1(m_scene, &context, &rh);
@@ -247,7 +247,7 @@ bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalSta
     const Ray& start = p.start.emplace(i, startInsideVolume(rays[i]));
     done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
     if (done[i]) continue;
-    if (meetsIsoSurfaces(start)) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
+    if (needsLanes()) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
     packLane(start, i, packet);
     p.valid[i] = -1;
     any = true;
@@ -412,7 +412,7 @@ bool World::intersectPastThin(const Ray& first, Hit& hit, Vec3f& T, TraversalSta
 }
 
 bool World::traceShadow(const Ray& ray, TraversalStats& stats) const {
-  if (!meetsIsoSurfaces(ray)) {
+  if (!needsLanes()) {
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRay r = toEmbree(ray);
