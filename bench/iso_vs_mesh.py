@@ -119,24 +119,14 @@ def render(scene, extra, resolution, image, stats):
     return s["seconds"]["render"], s["rays"]
 
 
-# Callgrind counts only inside a tile's pass (TileRenderer::renderPass: the camera rays, the
-# integrator's stages and every ray they trace, in either ray flow), so that loading, building and
-# writing the image are left out.
-COUNTED_SYMBOL = "iso::TileRenderer::renderPass(*"
-
-
 def count_instructions(scene, mode, resolution, image, work, flow=None):
-    """Instructions executed inside the tiles' passes for one render (callgrind)."""
-    out = os.path.join(work, "callgrind.out")
-    args = ["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out,
-            "--toggle-collect=" + COUNTED_SYMBOL, RENDERER, "render", scene, "-o", image,
-            "--resolution", resolution, "--quiet", "--seed", "7", "--spp", "4", "--threads", "1"] + \
-        (["--ray-flow", flow] if flow else RAY_FLOW)
-    # (valgrind_env: the Highway timer stand-in valgrind needs on some CPUs, see stage_breakdown.py)
-    r = subprocess.run(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                       env=stage_breakdown.valgrind_env(RENDERER, work))
-    if r.returncode != 0:
-        sys.exit("iso_vs_mesh: %s failed:\n%s" % (" ".join(args), r.stderr))
+    """Instructions executed inside the tiles' passes for one render (callgrind, counting only in
+    TileRenderer::renderPass: the camera rays, the integrator's stages and every ray they trace, in
+    either ray flow; loading, building and writing the image are left out). The run itself is
+    stage_breakdown.callgrind's (with the Highway timer stand-in valgrind needs on some CPUs)."""
+    out = stage_breakdown.callgrind(RENDERER, ["render", scene, "-o", image, "--resolution", resolution, "--quiet",
+                                               "--seed", "7", "--spp", "4", "--threads", "1"] +
+                                    (["--ray-flow", flow] if flow else RAY_FLOW), work)
     with open(out) as f:
         for line in f:
             if line.startswith("totals:") or line.startswith("summary:"):

@@ -33,10 +33,9 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
   m_alpha = options.alpha;
   m_pixel = pixels;
   m_pixels = n;
-  m_s0 = s0;
-  m_s1 = s1;
+  m_samples = size_t(s1 - s0);
   m_next = Stage::Camera;
-  const size_t ns = size_t(s1 - s0);
+  const size_t ns = m_samples;
   m_count = n * ns;
   if (m_paths.size() < m_count) m_paths.resize(m_count);  // reset path by path (PathState::begin)
   for (size_t i = 0; i < n; ++i)
@@ -53,25 +52,27 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
 // The camera rays by sample, in packets of one sample's 4x2 block (pixels that share x / 4 and
 // y / 2, consecutive in packet order).
 void Wave::collectCamera(RayBatch& batch) {
-  const size_t ns = size_t(m_s1 - m_s0);
-  for (size_t s = 0; s < ns; ++s) {
+  // The rays of the packet being filled; closing it marks where it ends.
+  auto open = [&] { return batch.rays.size() - (batch.packetEnds.empty() ? 0 : batch.packetEnds.back()); };
+  auto close = [&] {
+    if (open() > 0) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
+  };
+  for (size_t s = 0; s < m_samples; ++s) {
     int blockX = -1, blockY = -1;
     for (size_t i = 0; i < m_pixels; ++i) {
-      PathState& p = m_paths[i * ns + s];
+      PathState& p = m_paths[i * m_samples + s];
       if (!p.tracing) continue;
       p.tracing = false;
       const auto [x, y] = m_pixel[i];
-      const size_t open = batch.rays.size() - (batch.packetEnds.empty() ? 0 : batch.packetEnds.back());
-      if (x / 4 != blockX || y / 2 != blockY || open == World::kPacket) {
-        if (open > 0) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
+      if (x / 4 != blockX || y / 2 != blockY || open() == World::kPacket) {
+        close();
         blockX = x / 4;
         blockY = y / 2;
       }
       batch.rays.push_back(p.ray);
-      batch.paths.push_back(uint32_t(i * ns + s));
+      batch.paths.push_back(uint32_t(i * m_samples + s));
     }
-    const size_t open = batch.rays.size() - (batch.packetEnds.empty() ? 0 : batch.packetEnds.back());
-    if (open > 0) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
+    close();
   }
 }
 

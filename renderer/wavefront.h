@@ -67,11 +67,10 @@ class Wave {
   // Each pixel's samples, in sample order, finished and added to sumsOf(i), pixel i's sums.
   template <typename Sums>
   void finish(Sums&& sumsOf) {
-    const size_t ns = size_t(m_s1 - m_s0);
     for (size_t i = 0; i < m_pixels; ++i) {
       PixelSums& sums = sumsOf(i);
-      for (size_t s = 0; s < ns; ++s) {
-        PathState& p = m_paths[i * ns + s];
+      for (size_t s = 0; s < m_samples; ++s) {
+        PathState& p = m_paths[i * m_samples + s];
         m_integrator->finish(p);
         addSample(sums, p.out, m_alpha);
       }
@@ -84,8 +83,7 @@ class Wave {
   const Integrator* m_integrator = nullptr;
   bool m_alpha = false;
   const Pixel* m_pixel = nullptr;
-  size_t m_pixels = 0, m_count = 0;
-  int m_s0 = 0, m_s1 = 0;
+  size_t m_pixels = 0, m_samples = 0, m_count = 0;  // pixels, samples of each (s1 - s0), paths
   enum class Stage { Camera, Shadow, Closest } m_next = Stage::Camera;
   std::vector<PathState> m_paths;  // pixel i's sample s at i * (s1 - s0) + (s - s0); reused
 };

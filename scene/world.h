@@ -20,8 +20,8 @@
 
 namespace iso {
 
-// (A new field must be written in both branches of World::fillHit, which fills a Hit without
-// clearing it first.)
+// (A new field must be written by both World::fillHit (iso-surfaces) and World::fillTriangleHit,
+// which fill a Hit without clearing it first.)
 struct Hit {
   float t = 0;
   float tError = 0;   // |t - true t| <= tError (iso-surfaces; 0 for triangles)

@@ -27,15 +27,16 @@ struct CellSegment {
   bool hasExact = false;
   // The segment's ends on the exact ray are computed only for a segment solved in double
   // (exactEnd): from the exact ray (exactOrg + t exactDir, grid coordinates), the walk's t at
-  // each end, the axis of the face each end lies on (-1: none) and its local coordinate there.
+  // each end and the axis of the face each end lies on (-1: none; the end's local coordinate on
+  // it is a's or b's).
   const Vec3<double>* exactOrg = nullptr;
   const Vec3<double>* exactDir = nullptr;
   int exactAxis[2] = {-1, -1};
-  double exactT[2] = {0, 0}, exactSide[2] = {0, 0};
+  double exactT[2] = {0, 0};
   // End `end` (0: s = 0, 1: s = 1) in cell-local coordinates in double, on the exact ray.
   Vec3<double> exactEnd(int end) const {
     const int axis = exactAxis[end];
-    const double side = exactSide[end];
+    const double side = axis >= 0 ? double((end == 0 ? a : b)[axis]) : 0.0;
     const Vec3<double>& o = *exactOrg;
     const Vec3<double>& d = *exactDir;
     const double te = axis >= 0 ? (double(exactCell[axis]) + side - o[axis]) / d[axis] : exactT[end];

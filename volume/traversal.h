@@ -632,8 +632,6 @@ class CellWalk {
     seg.exactAxis[1] = leaveAxis;
     seg.exactT[0] = double(m_ta);
     seg.exactT[1] = double(m_tb);
-    seg.exactSide[0] = enterAxis >= 0 ? double(seg.a[enterAxis]) : 0.0;
-    seg.exactSide[1] = leaveAxis >= 0 ? double(seg.b[leaveAxis]) : 0.0;
     Real extent = 0;
     for (int a = 0; a < 3; ++a)
       extent = std::max(extent, std::fabs(m_ray->org[a]) + std::max(std::fabs(m_ta * m_ray->dir[a]), std::fabs(m_tb * m_ray->dir[a])));
