@@ -164,7 +164,8 @@ void onStopSignal(int signal) {
   if (signal == SIGINT) std::signal(SIGINT, SIG_DFL);
 }
 
-// Under MPI, one frame: tiles and busy seconds per rank, and busiest over idlest rank.
+// Under MPI, rendering by tiles: tiles and busy seconds per rank (summed over the frames), and
+// busiest over idlest rank.
 std::string rankFigures(const RankFigures* f) {
   if (!f || f->tiles.empty()) return "";
   std::string tiles, busy;
@@ -324,12 +325,7 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   r.scene = parseSceneFile(flags.scene, flags.overrides);
   applyFlags(flags, r.scene);
   r.seq = frameSequence(flags, r.scene);
-  if (r.scene.settings.dataParallel) {
-    checkDataParallel(r.scene);
-    if (r.seq.frames > 1)
-      throw InputError(flags.frames > 1 ? "--frames" : "--iso-sweep", "",
-                       "a data-parallel render (--data-parallel) renders one frame; sequences go frame by frame over ranks without it");
-  }
+  if (r.scene.settings.dataParallel) checkDataParallel(r.scene);
   r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
   std::error_code ec;
   if (std::filesystem::is_directory(r.output, ec)) throw InputError(r.output, "", "is a directory; name the output file");
@@ -387,7 +383,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
   RenderOptions options = setup.options;
   options.progress = options.progress && job.rank() == 0;
   RenderResult total;
-  RankFigures figures;
+  RankFigures figures, frameFigures;  // all frames', the last frame's
   int framesDone = 0;
   bool warned = false;
   for (int frame = 0; frame < seq.frames; ++frame) {
@@ -420,9 +416,13 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     options.denoiseInput = denoising ? &denoiseInput : nullptr;
     RenderResult result =
         !byTiles ? renderFrame(camera, *integrator, options, film, direct.get())
-        : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &figures)
-                         : renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &figures);
-    if (byTiles && job.rank() != 0) return result.interrupted ? 130 : 0;  // rank 0 writes the image
+        : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &frameFigures)
+                         : renderFrameDistributed(job, camera, *integrator, options, film, direct.get(), &frameFigures);
+    figures.add(frameFigures);
+    if (byTiles && job.rank() != 0) {  // rank 0 writes the image
+      if (result.interrupted) return 130;
+      continue;
+    }
     // Denoised once, on the whole image (under MPI on rank 0 after the gather: the same bits as
     // one process).
     Film indirect(0, 0);
@@ -498,6 +498,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     ++framesDone;
     if (result.interrupted) break;
   }
+  if (byTiles && job.rank() != 0) return 0;  // (every frame done: rank 0 reports)
   if (framesDone > 0) total.meanSamples /= framesDone;
   if (job.distributed() && !byTiles) {
     // The frames of all ranks: counters and samples on rank 0, which alone reports them.
@@ -569,9 +570,10 @@ int render(const RenderFlags& flags) {
   } restore{previousInt, previousTerm};
 
   // Under MPI one frame is spread over the ranks by tiles; a sequence by whole frames (frame f
-  // on rank f mod N, which writes it).
+  // on rank f mod N, which writes it), except a data-parallel one: every frame over all ranks
+  // (each holds only its part of the volumes), rank 0 writing each.
   RenderSetup setup;
-  const bool byTiles = job.distributed() && flags.frames == 1;
+  bool byTiles = false;  // set once the scene is read (a scene file may ask for data-parallel)
   auto mine = [&](int frame) { return byTiles || frame % job.size() == job.rank(); };
   std::unique_ptr<World> world;
   int worldFrame = -1;
@@ -581,10 +583,21 @@ int render(const RenderFlags& flags) {
     if (world && setup.seq.surface < 0) return;
     if (setup.seq.surface >= 0) setup.seq.iso(setup.scene)->value = setup.seq.isoValue(frame);
     // A sweep changes iso values only: the volumes stay loaded from the previous frame's World.
-    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector, world.get());
+    // Not so for a data-parallel rank: its part of a volume is balanced by the bricks the iso
+    // values make active, so each value has its own parts (read again).
+    const bool dataParallel = setup.scene.settings.dataParallel && job.distributed();
+    const bool first = !world;  // (the first World's bounds are shared once every rank has loaded, below)
+    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector, dataParallel ? nullptr : world.get());
     worldFrame = frame;
     loadSeconds += world->loadSeconds();
     buildSeconds += world->buildSeconds();
+    if (dataParallel && !first) {
+      // As for the first World (below): the framing and the lights' power of the whole scene.
+      // Collective: every rank builds every frame's World.
+      Vec3d lower = world->lower(), upper = world->upper();
+      job.unionOfBounds(lower, upper);
+      world->setSceneBounds(setup.scene, lower, upper);
+    }
   };
   auto firstFrame = [&] {
     for (int f = 0; f < setup.seq.frames; ++f)
@@ -599,6 +612,7 @@ int render(const RenderFlags& flags) {
     std::string error;
     try {
       setup = prepareRender(flags);
+      byTiles = setup.seq.frames == 1 || setup.scene.settings.dataParallel;
       if (setup.scene.settings.dataParallel) setup.scene.dataPart = DataPart{job.rank(), job.size()};
       if (const int f = firstFrame(); f >= 0) buildWorld(f);
       if (stopRequested()) error = "interrupted while loading: no image written";

@@ -63,6 +63,8 @@ struct RankFigures {
   // (rays, and hits back), and the seconds it waited for other ranks' messages (busySeconds: the
   // rest of the frame's).
   std::vector<double> raysAsked, raysSent, raysReceived, bytesSent, waitSeconds;
+  // Adds another frame's figures, rank by rank (a sequence's stats are its frames' sums).
+  void add(const RankFigures& frame);
 };
 
 // One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image

@@ -4,7 +4,7 @@
 // their stages: the camera rays, then shadow rays and closest-hit rays in turn until no path asks
 // for a ray, then each pixel's samples summed in sample order. What traces a stage's rays is the
 // caller's: one process traces a batch against its World (traceBatch: TileRenderer's wavefront
-// pass), a data-parallel rank sends the rays through the ranks (renderer/distributed.cpp's
+// pass), a data-parallel rank sends the rays through the ranks (renderer/data_parallel.cpp's
 // RankTracer). Every way gives each path the same hits, so the images are the same bits.
 #include <cstdint>
 #include <utility>

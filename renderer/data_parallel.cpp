@@ -1,543 +1,29 @@
-#include "renderer/distributed.h"
-#include "renderer/wavefront.h"
-
+// Data-parallel rendering under MPI (renderFrameDataParallel): each rank holds part of every
+// volume and the ranks answer each other's rays (docs/distributed.md).
 #include <mpi.h>
 #include <tbb/blocked_range.h>
-#include <tbb/concurrent_queue.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
-#include <condition_variable>
-#include <deque>
-#include <mutex>
 #include <limits>
-#include <thread>
 #include <type_traits>
+
+#include "renderer/distributed.h"
+#include "renderer/mpi_messages.h"
+#include "renderer/wavefront.h"
 
 namespace iso {
 
-namespace {
-
-// Messages between the ranks of one frame. The work is a piece: the next passes of one tile,
-// at least kPieceSamples samples (passes of 1, 1, 2 and 4 samples are too short alone to be
-// worth a message). Rank 0 sends the tile's sums with it and gets them back with the samples
-// added, so a pixel's sums grow in sample order whichever rank takes which passes.
-enum Tag : int {
-  kRequest = 1,  // rank -> 0: one more piece, please (no payload)
-  kPiece = 2,    // 0 -> rank: PieceHeader + the tile's sums so far; tile -1: no more
-  kResult = 3,   // rank -> 0: PieceHeader + the tile's sums with the piece's samples
-  kDone = 4,     // rank -> 0: every result sent, nothing more will come
-  // Data-parallel (renderFrameDataParallel), at the end of the frame:
-  kTiles = 5,    // rank -> 0: how many tiles it rendered, then their indices
-  kSums = 6,     // rank -> 0: those tiles' sums, pixel by pixel, in pieces of at most 64 MiB
-};
-
-constexpr int kPieceSamples = 8;
-
-struct PieceHeader {
-  int32_t tile = -1;
-  int32_t pass = 0, s0 = 0;  // the first pass of the piece (on return: the next one)
-  int32_t open = 1;          // on return: whether the tile needs more passes
-  double busySeconds = 0;
-};
-
-using Clock = std::chrono::steady_clock;
-
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
-bool launchedByMpi() {
-  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"})
-    if (std::getenv(name)) return true;
-  return false;
-}
-
-// A piece with its tile's sums (row-major over the tile), before and after rendering.
-struct Piece {
-  PieceHeader header;
-  std::vector<PixelSums> sums;
-};
-
-// This rank's render threads: each takes pieces from `todo` (tile -1 ends it), renders them
-// and puts them on `done`. The rank's main thread alone talks MPI (MPI_THREAD_FUNNELED).
-class PieceWorkers {
- public:
-  PieceWorkers(const TileRenderer& tiles, int threads) : m_tiles(tiles), m_counters(size_t(threads)) {
-    for (int i = 0; i < threads; ++i) m_threads.emplace_back([this, i] { run(m_counters[size_t(i)]); });
-  }
-  ~PieceWorkers() { join(); }
-  void push(Piece piece) { m_todo.push(std::move(piece)); }
-  bool pop(Piece& piece) { return m_done.try_pop(piece); }
-  // Sleeps until a piece is done or `timeout` has passed (the main thread's wait between
-  // looks at MPI: it must not take the core a render thread needs).
-  void waitForDone(std::chrono::microseconds timeout) {
-    std::unique_lock<std::mutex> lock(m_mutex);
-    m_doneChanged.wait_for(lock, timeout, [&] { return m_doneCount != m_seenCount; });
-    m_seenCount = m_doneCount;
-  }
-  // Ends the threads once the pieces pushed so far are done; the counters of all of them.
-  RayCounters join() {
-    for (size_t i = 0; i < m_threads.size(); ++i) m_todo.push(Piece{});
-    for (std::thread& t : m_threads) t.join();
-    m_threads.clear();
-    RayCounters total;
-    for (const RayCounters& c : m_counters) total.add(c);
-    return total;
-  }
-
- private:
-  void run(RayCounters& counters) {
-    for (;;) {
-      Piece piece;
-      m_todo.pop(piece);
-      if (piece.header.tile < 0) return;
-      const auto start = Clock::now();
-      PieceHeader& h = piece.header;
-      h.open = m_tiles.renderPasses(h.tile, h.pass, h.s0, kPieceSamples, piece.sums.data(), counters);
-      h.busySeconds = since(start);
-      m_done.push(std::move(piece));
-      {
-        std::lock_guard<std::mutex> lock(m_mutex);
-        ++m_doneCount;
-      }
-      m_doneChanged.notify_one();
-    }
-  }
-
-  const TileRenderer& m_tiles;
-  std::vector<RayCounters> m_counters;
-  std::vector<std::thread> m_threads;
-  tbb::concurrent_bounded_queue<Piece> m_todo;
-  tbb::concurrent_queue<Piece> m_done;
-  std::mutex m_mutex;
-  std::condition_variable m_doneChanged;
-  uint64_t m_doneCount = 0, m_seenCount = 0;
-};
-
-// A piece as bytes (header, then the sums) and back; false if the bytes are no piece of this frame.
-void pack(const Piece& piece, std::vector<char>& bytes) {
-  bytes.resize(sizeof(PieceHeader) + piece.sums.size() * sizeof(PixelSums));
-  std::memcpy(bytes.data(), &piece.header, sizeof(PieceHeader));
-  if (!piece.sums.empty())
-    std::memcpy(bytes.data() + sizeof(PieceHeader), static_cast<const void*>(piece.sums.data()),
-                piece.sums.size() * sizeof(PixelSums));
-}
-
-bool unpack(const std::vector<char>& bytes, const TileRenderer& tiles, int spp, Piece& piece) {
-  if (bytes.size() < sizeof(PieceHeader)) return false;
-  std::memcpy(&piece.header, bytes.data(), sizeof(PieceHeader));
-  const PieceHeader& h = piece.header;
-  if (h.tile == -1 && bytes.size() == sizeof(PieceHeader)) return true;
-  if (h.tile < 0 || h.tile >= tiles.tiles() || h.pass < 0 || h.pass > spp || h.s0 < 0 || h.s0 > spp) return false;
-  const size_t pixels = size_t(tiles.rect(h.tile).pixels());
-  if (bytes.size() != sizeof(PieceHeader) + pixels * sizeof(PixelSums)) return false;
-  piece.sums.resize(pixels);
-  std::memcpy(static_cast<void*>(piece.sums.data()), bytes.data() + sizeof(PieceHeader), pixels * sizeof(PixelSums));
-  return true;
-}
-
-// Sends that never block: two ranks each in a blocking send of a large message to the other
-// would wait for each other forever. A message's bytes live here until MPI is done with them.
-class Outbox {
- public:
-  void send(std::vector<char> bytes, int to, int tag) {
-    m_pending.push_back({MPI_REQUEST_NULL, std::move(bytes)});
-    Pending& p = m_pending.back();
-    MPI_Isend(p.bytes.data(), int(p.bytes.size()), MPI_BYTE, to, tag, MPI_COMM_WORLD, &p.request);
-  }
-  // Forgets the messages that are sent.
-  void progress() {
-    for (size_t i = 0; i < m_pending.size();) {
-      int done = 0;
-      MPI_Test(&m_pending[i].request, &done, MPI_STATUS_IGNORE);
-      if (done) {
-        m_pending[i] = std::move(m_pending.back());
-        m_pending.pop_back();
-      } else {
-        ++i;
-      }
-    }
-  }
-  // Waits until every message is sent (the receivers are still receiving).
-  void drain() {
-    for (Pending& p : m_pending) MPI_Wait(&p.request, MPI_STATUS_IGNORE);
-    m_pending.clear();
-  }
-
- private:
-  struct Pending {
-    MPI_Request request;
-    std::vector<char> bytes;  // moving the vector keeps its buffer where MPI has it
-  };
-  std::vector<Pending> m_pending;
-};
-
-// Receives the message `status` announced, whole.
-std::vector<char> receive(const MPI_Status& status) {
-  int bytes = 0;
-  MPI_Get_count(&status, MPI_BYTE, &bytes);
-  std::vector<char> buffer(size_t(std::max(bytes, 0)));
-  MPI_Recv(buffer.data(), bytes, MPI_BYTE, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  return buffer;
-}
-
-// The main thread's wait between looks at MPI when there was nothing to do: asleep until a
-// render thread finishes a piece, or for a time that doubles from 50 us to 2 ms while nothing
-// happens (back to 50 us once something does). mpirun binds each rank to one core, which the
-// main thread shares with the rank's render thread: a fixed 100 us poll woke it 10,000 times a
-// second, each an MPI progress call and two context switches on that core, and the render ran
-// ~55% slower than in one process (docs/BENCHMARKS.md, "The image-parallel slowdown"). Pieces
-// take milliseconds and every rank holds two more than it renders, so a 2 ms answer is not waited for.
-class Idle {
- public:
-  void wait(PieceWorkers& workers, bool busy) {
-    if (busy) {
-      m_wait = kShortest;
-      return;
-    }
-    workers.waitForDone(m_wait);
-    m_wait = std::min(m_wait * 2, kLongest);
-  }
-
- private:
-  static constexpr std::chrono::microseconds kShortest{50}, kLongest{2000};
-  std::chrono::microseconds m_wait = kShortest;
-};
-
-void sendCounters(const RayCounters& mine, RayCounters& total, int root) {
-  constexpr int n = 3 + TraversalStats::kFields;
-  uint64_t v[n] = {mine.camera, mine.shadow, mine.indirect};
-  int i = 3;
-  TraversalStats traversal = mine.traversal;
-  traversal.forEach([&](uint64_t& value) { v[i++] = value; });
-  uint64_t s[n] = {};
-  MPI_Reduce(v, s, n, MPI_UINT64_T, MPI_SUM, root, MPI_COMM_WORLD);
-  total.camera = s[0];
-  total.shadow = s[1];
-  total.indirect = s[2];
-  i = 3;
-  total.traversal.forEach([&](uint64_t& value) { value = s[i++]; });
-}
-
-}  // namespace
-
-MpiJob::MpiJob() {
-  if (!launchedByMpi()) return;
-  int provided = 0;
-  MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
-  m_initialised = true;
-  MPI_Comm_rank(MPI_COMM_WORLD, &m_rank);
-  MPI_Comm_size(MPI_COMM_WORLD, &m_size);
-}
-
-MpiJob::~MpiJob() {
-  if (!m_initialised) return;
-  if (m_abandoned) MPI_Abort(MPI_COMM_WORLD, 130);
-  MPI_Finalize();
-}
-
-std::string MpiJob::where() const {
-  return distributed() ? "rank " + std::to_string(m_rank) + " of " + std::to_string(m_size) + ": " : "";
-}
-
-std::string MpiJob::firstError(const std::string& mine) const {
-  if (!distributed()) return mine;
-  int failing = mine.empty() ? m_size : m_rank, first = m_size;
-  MPI_Allreduce(&failing, &first, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
-  if (first == m_size) return "";
-  int length = first == m_rank ? int(mine.size()) : 0;
-  MPI_Bcast(&length, 1, MPI_INT, first, MPI_COMM_WORLD);
-  std::string message(size_t(length), '\0');
-  if (first == m_rank) message = mine;
-  MPI_Bcast(message.data(), length, MPI_CHAR, first, MPI_COMM_WORLD);
-  return first == 0 ? message : "rank " + std::to_string(first) + " of " + std::to_string(m_size) + ": " + message;
-}
-
-RankExchange MpiJob::rankExchange() const {
-  static_assert(std::is_trivially_copyable_v<Hit>, "hits go between ranks as bytes");
-  RankExchange x;
-  x.rank = m_rank;
-  x.ranks = m_size;
-  x.closest = [size = m_size](bool found, Hit& hit) {
-    struct Answer {
-      int found;
-      Hit hit;
-    };
-    Answer mine{found ? 1 : 0, hit};
-    std::vector<Answer> all(static_cast<size_t>(size));
-    MPI_Allgather(&mine, int(sizeof mine), MPI_BYTE, all.data(), int(sizeof mine), MPI_BYTE, MPI_COMM_WORLD);
-    bool any = false;
-    for (const Answer& a : all)  // the closest; of equal ones the lowest rank's (as one process's parts)
-      if (a.found && (!any || a.hit.t < hit.t)) {
-        hit = a.hit;
-        any = true;
-      }
-    return any;
-  };
-  x.any = [](bool blocked) {
-    int mine = blocked ? 1 : 0, some = 0;
-    MPI_Allreduce(&mine, &some, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
-    return some != 0;
-  };
-  x.firstError = [this](const std::string& mine) { return firstError(mine); };
-  return x;
-}
-
-int MpiJob::sum(int v) const {
-  if (!distributed()) return v;
-  int total = 0;
-  MPI_Allreduce(&v, &total, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
-  return total;
-}
-
-void MpiJob::unionOfBounds(Vec3d& lower, Vec3d& upper) const {
-  double lo[3] = {lower.x, lower.y, lower.z}, hi[3] = {-upper.x, -upper.y, -upper.z}, v[6];
-  double mine[6] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]};
-  MPI_Allreduce(mine, v, 6, MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);  // (max as the min of negatives)
-  lower = {v[0], v[1], v[2]};
-  upper = {-v[3], -v[4], -v[5]};
-}
-
-RenderResult MpiJob::combine(const RenderResult& mine, int framesMine, int framesAll) const {
-  if (!distributed()) return mine;
-  RenderResult total;
-  sendCounters(mine.counters, total.counters, 0);
-  // Ranks without a frame count as having every sample (they hold back nothing).
-  int minMax[2] = {framesMine ? -mine.minSamples : std::numeric_limits<int>::min(), mine.maxSamples};
-  int reduced[2] = {};
-  MPI_Reduce(minMax, reduced, 2, MPI_INT, MPI_MAX, 0, MPI_COMM_WORLD);
-  double sums[2] = {mine.meanSamples * framesMine, mine.interrupted ? 1.0 : 0.0}, summed[2] = {};
-  MPI_Reduce(sums, summed, 2, MPI_DOUBLE, MPI_SUM, 0, MPI_COMM_WORLD);
-  double seconds = 0;
-  MPI_Reduce(&mine.seconds, &seconds, 1, MPI_DOUBLE, MPI_MAX, 0, MPI_COMM_WORLD);
-  total.minSamples = -reduced[0];
-  total.maxSamples = reduced[1];
-  total.meanSamples = framesAll > 0 ? summed[0] / framesAll : 0;
-  total.interrupted = summed[1] > 0;
-  total.seconds = seconds;
-  return total;
-}
-
-void MpiJob::abort(int status) const {
-  std::fflush(stdout);
-  std::fflush(stderr);
-  if (m_initialised) MPI_Abort(MPI_COMM_WORLD, status);
-  std::_Exit(status);
-}
-
-RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
-                                    const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
-  const int w = film.width(), h = film.height();
-  const TileRenderer tiles(camera, integrator, options, w, h);
-  // As many threads as the rank may use cores (TBB reads the affinity mask mpirun binds it to).
-  const int threads = options.threads > 0 ? options.threads : std::max(1, tbb::this_task_arena::max_concurrency());
-  const int inFlight = threads + 2;  // pieces a rank holds: some waiting beside the busy threads
-  const int size = job.size();
-  const auto start = Clock::now();
-  PieceWorkers workers(tiles, threads);
-  RenderResult result;
-
-  if (job.rank() == 0) {
-    // Pieces go out pass by pass, as renderFrame renders (so a stopped render has every pixel
-    // sampled alike): pending[p] holds the tiles whose pass p is next; a tile comes back before
-    // its next passes go out.
-    std::vector<PixelSums> sums(size_t(w) * h);
-    std::vector<std::deque<int>> pending(1);
-    std::vector<int> passOf(size_t(tiles.tiles()), 0), startOf(size_t(tiles.tiles()), 0);
-    for (int t = 0; t < tiles.tiles(); ++t) pending[0].push_back(t);
-    std::vector<int> piecesOf(size_t(size), 0);
-    std::vector<double> busyOf(size_t(size), 0.0);
-    int out = 0, localHeld = 0, doneRanks = 0;
-    uint64_t samplesDone = 0;
-    const double samplesAll = double(w) * h * options.spp;
-    auto take = [&](Piece& piece) {
-      for (std::deque<int>& tilesOfPass : pending) {
-        if (tilesOfPass.empty()) continue;
-        const int t = tilesOfPass.front();
-        tilesOfPass.pop_front();
-        const TileRenderer::Rect r = tiles.rect(t);
-        piece.header = {};
-        piece.header.tile = t;
-        piece.header.pass = passOf[size_t(t)];
-        piece.header.s0 = startOf[size_t(t)];
-        piece.sums.resize(size_t(r.pixels()));
-        for (int y = r.y0; y < r.y1; ++y)
-          std::copy_n(sums.begin() + ptrdiff_t(size_t(y) * w + r.x0), r.x1 - r.x0,
-                      piece.sums.begin() + ptrdiff_t(size_t(y - r.y0) * (r.x1 - r.x0)));
-        ++out;
-        return true;
-      }
-      return false;
-    };
-    auto store = [&](const Piece& piece, int from) {
-      const int t = piece.header.tile;
-      const TileRenderer::Rect r = tiles.rect(t);
-      for (int y = r.y0; y < r.y1; ++y)
-        for (int x = r.x0; x < r.x1; ++x) {
-          PixelSums& p = sums[size_t(y) * w + x];
-          const PixelSums& q = piece.sums[size_t(y - r.y0) * (r.x1 - r.x0) + size_t(x - r.x0)];
-          samplesDone += uint64_t((q.converged ? options.spp : q.samples) - (p.converged ? options.spp : p.samples));
-          p = q;
-        }
-      --out;
-      ++piecesOf[size_t(from)];
-      busyOf[size_t(from)] += piece.header.busySeconds;
-      startOf[size_t(t)] = piece.header.s0;
-      const int pass = passOf[size_t(t)] = piece.header.pass;
-      if (piece.header.open) {
-        if (pending.size() <= size_t(pass)) pending.resize(size_t(pass) + 1);
-        pending[size_t(pass)].push_back(t);
-      }
-    };
-    std::deque<int> waiting;  // ranks that asked for a piece and have no answer yet
-    Idle idle;
-    Outbox outbox;
-    std::vector<char> bytes;
-    double lastPrint = -1, stoppedAt = -1;
-    bool printed = false;
-    for (;;) {
-      bool busy = false;
-      const bool stop = stopRequested();
-      if (stop && stoppedAt < 0) stoppedAt = since(start);
-      for (Piece piece; !stop && localHeld < inFlight && take(piece); ++localHeld) workers.push(std::move(piece));
-      for (Piece piece; workers.pop(piece); busy = true) {
-        store(piece, 0);
-        --localHeld;
-      }
-      int flag = 0;
-      MPI_Status status;
-      MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, &status);
-      if (flag) {
-        busy = true;
-        const int from = status.MPI_SOURCE;
-        bytes = receive(status);
-        if (status.MPI_TAG == kRequest) {
-          waiting.push_back(from);
-        } else if (status.MPI_TAG == kResult) {
-          Piece piece;
-          if (!unpack(bytes, tiles, options.spp, piece) || piece.header.tile < 0) {
-            std::fprintf(stderr, "isotrace: rank %d sent a malformed piece (%zu bytes)\n", from, bytes.size());
-            job.abort(1);
-          }
-          store(piece, from);
-        } else if (status.MPI_TAG == kDone) {
-          ++doneRanks;
-        } else {
-          std::fprintf(stderr, "isotrace: rank %d sent an unknown message (tag %d)\n", from, status.MPI_TAG);
-          job.abort(1);
-        }
-      }
-      // A rank that asks while every remaining tile is out waits for the next pass of one;
-      // "no more" (tile -1) only once all is done, or after a stop.
-      for (Piece piece; !waiting.empty() && !stop && take(piece); waiting.pop_front(), busy = true) {
-        pack(piece, bytes);
-        outbox.send(std::move(bytes), waiting.front(), kPiece);
-      }
-      const bool allOut = std::all_of(pending.begin(), pending.end(), [](const std::deque<int>& d) { return d.empty(); });
-      for (; !waiting.empty() && (stop || (allOut && out == 0)); waiting.pop_front()) {
-        pack(Piece{}, bytes);
-        outbox.send(std::move(bytes), waiting.front(), kPiece);
-      }
-      outbox.progress();
-      if (options.progress) {
-        const double elapsed = since(start);
-        if (elapsed - lastPrint >= 0.25) {
-          lastPrint = elapsed;
-          const double fraction = std::min(1.0, double(samplesDone) / std::max(1.0, samplesAll));
-          const int bar = int(fraction * 30);
-          std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%  elapsed %.0fs, %d ranks ", bar, "==============================",
-                       30 - bar, "", fraction * 100, elapsed, size);
-          std::fflush(stderr);
-          printed = true;
-        }
-      }
-      // The end: every rank said it is done, and no piece is out (after a stop: none is handed out).
-      if (localHeld == 0 && doneRanks == size - 1 && out == 0) break;
-      // After a stop the others get half a second to send what they have (mpirun kills its
-      // ranks a second after it forwards the signal); the image is written with what came.
-      if (stop && localHeld == 0 && since(start) - stoppedAt > 0.5) {
-        std::fprintf(stderr, "\nisotrace: stopped waiting for %d rank(s) after the stop request\n", size - 1 - doneRanks);
-        job.abandon();
-        break;
-      }
-      idle.wait(workers, busy);
-    }
-    if (printed) std::fprintf(stderr, "\n");
-    if (doneRanks == size - 1) outbox.drain();
-    result.counters = workers.join();
-    result.seconds = since(start);
-    if (figures) *figures = RankFigures{piecesOf, busyOf, {}, {}, {}, {}, {}};
-    if (doneRanks == size - 1) {
-      RayCounters total;
-      sendCounters(result.counters, total, 0);
-      result.counters = total;
-    }
-    resolveFrame(sums, options, film, direct, result);
-    return result;
-  }
-
-  // Every other rank: keeps up to `inFlight` pieces asked for or in hand, returns each.
-  int asked = 0, held = 0;
-  bool noMore = false;
-  Idle idle;
-  Outbox outbox;
-  std::vector<char> bytes;
-  for (;;) {
-    bool busy = false;
-    const bool stop = stopRequested();
-    for (; !noMore && !stop && asked + held < inFlight; ++asked) outbox.send({}, 0, kRequest);
-    int flag = 0;
-    MPI_Status status;
-    MPI_Iprobe(0, kPiece, MPI_COMM_WORLD, &flag, &status);
-    if (flag) {
-      busy = true;
-      bytes = receive(status);
-      --asked;
-      Piece piece;
-      if (!unpack(bytes, tiles, options.spp, piece)) {
-        std::fprintf(stderr, "isotrace: %srank 0 sent a malformed piece (%zu bytes)\n", job.where().c_str(), bytes.size());
-        job.abort(1);
-      }
-      if (piece.header.tile < 0) {
-        noMore = true;
-      } else {
-        workers.push(std::move(piece));
-        ++held;
-      }
-    }
-    for (Piece piece; workers.pop(piece); busy = true) {
-      pack(piece, bytes);
-      outbox.send(std::move(bytes), 0, kResult);
-      --held;
-    }
-    outbox.progress();
-    if (held == 0 && asked == 0 && (noMore || stop)) break;
-    idle.wait(workers, busy);
-  }
-  outbox.send({}, 0, kDone);
-  outbox.drain();
-  result.counters = workers.join();
-  result.seconds = since(start);
-  RayCounters unused;
-  sendCounters(result.counters, unused, 0);
-  return result;
-}
-
+using namespace mpi;
 
 namespace {
 
 static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<Hit>,
               "rays and hits go between ranks as bytes (every rank runs the same binary)");
-
-// The messages of a data-parallel frame's stages, per slot of the pipeline (renderFrameDataParallel):
-// tag kAsk + 2 * slot carries a stage's rays to a rank, kAsk + 1 + 2 * slot the answers back.
-constexpr int kAsk = 16;
 
 // One stage of a round of paths (its camera, shadow or continuation rays) on its way through the
 // ranks: this rank's rays and what is known of them so far, and the rays the other ranks asked of
@@ -908,7 +394,8 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   constexpr int kPathsPerRound = 2048;
   std::vector<Round> slots(kSlots);
   const size_t mostPixels = size_t((tiles.tiles() + ranks - 1) / ranks) * TileRenderer::kTile * TileRenderer::kTile;  // (share)
-  for (int pass = 0, s0 = 0; s0 < options.spp; ++pass) {
+  int s0 = 0;
+  for (int pass = 0; s0 < options.spp; ++pass) {
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp), ns = s1 - s0;
     const size_t maxPixels = std::max<size_t>(1, size_t(kPathsPerRound) / size_t(ns));
     const size_t rounds = (mostPixels + maxPixels - 1) / maxPixels;
@@ -971,6 +458,8 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     s0 = s1;
     if (tracer.anyRank(stopRequested())) break;  // any rank's request: every rank stops here
   }
+  // Every rank knows whether the frame stopped short (a sequence then ends on every rank).
+  const bool stoppedShort = s0 < options.spp;
   tracer.drain();
 
 
@@ -1029,7 +518,10 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   double asked[kFigures] = {tracer.raysAsked, tracer.raysSent, tracer.raysReceived, tracer.bytesSent, tracer.waitSeconds};
   std::vector<double> allAsked(static_cast<size_t>(kFigures * ranks));
   MPI_Gather(asked, kFigures, MPI_DOUBLE, allAsked.data(), kFigures, MPI_DOUBLE, 0, MPI_COMM_WORLD);
-  if (rank != 0) return result;
+  if (rank != 0) {
+    result.interrupted = stoppedShort;
+    return result;
+  }
   if (figures) {
     figures->tiles.assign(static_cast<size_t>(ranks), 0);
     for (int t : owner) ++figures->tiles[size_t(t)];
@@ -1054,3 +546,4 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
 }
 
 }  // namespace iso
+
