@@ -4,9 +4,11 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <ucontext.h>
 
 #include <algorithm>
 #include <cerrno>
+#include <exception>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -15,6 +17,7 @@
 #include <random>
 #include <set>
 #include <sstream>
+#include <type_traits>
 
 #include "scene/world.h"
 #include "volume/input_error.h"
@@ -42,6 +45,104 @@ bool clipToBox(const Vec3d& o, const Vec3d& d, const Vec3d& hi, double& t0, doub
   return lineInBox(o, d, Vec3d{0, 0, 0}, hi, t0, t1) && t0 < t1;
 }
 
+// Under mpirun (RankExchange): the rays' tests on lanes (ray i on lane i mod kLanes, each lane
+// taking its rays in order), whose queries go through the ranks in rounds. A lane is a fiber
+// (ucontext) of the calling thread, the one that talks MPI: each round it runs every lane still
+// testing up to its next query, sends the round's answers through the ranks in one collective,
+// and resumes each lane with its combined answer. Every rank makes the same rounds (the same
+// lanes ask the same queries, since the combined answers are the same on every rank), and the
+// counts are those of one ray after another: a test depends on its own ray's answers only.
+// (Threads instead of fibers: a switch per query on the rank's one core cost more than the
+// collectives they saved.)
+class LaneRounds {
+ public:
+  static constexpr int kLanes = 64;
+
+  explicit LaneRounds(const RankExchange& exchange) : m_exchange(exchange) {}
+
+  // Runs test(i, lane) for every ray i in [0, n) on the lanes; returns when every lane is done.
+  template <typename Test>
+  void run(int n, Test&& test) {
+    using Body = std::decay_t<Test>;
+    struct Start {
+      LaneRounds* rounds;
+      Body* test;
+      int n;
+    } start{this, &test, n};
+    m_lanes.clear();
+    m_lanes.resize(kLanes);
+    m_answers.assign(kLanes, RankAnswer{});
+    m_failure = nullptr;
+    for (int l = 0; l < kLanes; ++l) {
+      Lane& lane = m_lanes[size_t(l)];
+      lane.stack.reset(new char[kStackBytes]);
+      getcontext(&lane.context);
+      lane.context.uc_stack.ss_sp = lane.stack.get();
+      lane.context.uc_stack.ss_size = kStackBytes;
+      lane.context.uc_link = &m_scheduler;
+      // (makecontext passes ints: the pointer in two halves.)
+      const uintptr_t p = reinterpret_cast<uintptr_t>(&start);
+      makecontext(&lane.context, reinterpret_cast<void (*)()>(&LaneRounds::laneMain<Start, Body>), 3, l,
+                  unsigned(p & 0xffffffffu), unsigned(p >> 32));
+    }
+    std::vector<RankAnswer> round(kLanes);
+    for (;;) {
+      bool any = false;
+      for (int l = 0; l < kLanes; ++l) {
+        Lane& lane = m_lanes[size_t(l)];
+        if (lane.done) {
+          round[size_t(l)] = RankAnswer{};  // asks nothing
+          continue;
+        }
+        m_current = l;
+        swapcontext(&m_scheduler, &lane.context);  // runs the lane up to its next query, or to its end
+        round[size_t(l)] = lane.done ? RankAnswer{} : m_answers[size_t(l)];
+        any = any || !lane.done;
+      }
+      if (!any) break;
+      m_exchange.combine(round);
+      m_answers = round;
+    }
+    m_lanes.clear();
+    if (m_failure) std::rethrow_exception(m_failure);
+  }
+
+  // From a lane's test: this rank's answer in, the ranks' combined answer out.
+  void ask(RankAnswer& answer) {
+    const int l = m_current;
+    m_answers[size_t(l)] = answer;
+    swapcontext(&m_lanes[size_t(l)].context, &m_scheduler);  // back when the round is combined
+    answer = m_answers[size_t(l)];
+  }
+
+ private:
+  static constexpr size_t kStackBytes = size_t(1) << 20;  // (touched pages only)
+  struct Lane {
+    ucontext_t context{};
+    std::unique_ptr<char[]> stack;
+    bool done = false;
+  };
+
+  template <typename Start, typename Body>
+  static void laneMain(int lane, unsigned lo, unsigned hi) {
+    Start& start = *reinterpret_cast<Start*>(uintptr_t(lo) | uintptr_t(hi) << 32);
+    LaneRounds& self = *start.rounds;
+    try {
+      for (int i = lane; i < start.n; i += kLanes) (*start.test)(i, lane);
+    } catch (...) {  // (an exception may not leave a fiber)
+      if (!self.m_failure) self.m_failure = std::current_exception();
+    }
+    self.m_lanes[size_t(lane)].done = true;  // returns to the scheduler (uc_link)
+  }
+
+  const RankExchange& m_exchange;
+  ucontext_t m_scheduler{};
+  std::vector<Lane> m_lanes;
+  std::vector<RankAnswer> m_answers;
+  int m_current = -1;
+  std::exception_ptr m_failure;
+};
+
 class SurfaceChecker {
  public:
   SurfaceChecker(const World& world, const Transform& toWorld, double iso, RayFlow flow)
@@ -61,10 +162,11 @@ class SurfaceChecker {
 
   // WatertightOptions::ranks: the parts' Worlds answer instead of the whole one.
   void setParts(std::vector<const World*> parts) { m_parts = std::move(parts); }
-  // WatertightOptions::exchange: this rank's part answers, combined with the other ranks'.
-  void setRankPart(const World* part, const RankExchange* exchange) {
+  // WatertightOptions::exchange: this rank's part answers, combined with the other ranks' in
+  // the lanes' rounds (the tests then run on the rounds' lanes).
+  void setRankPart(const World* part, LaneRounds* rounds) {
     m_parts = {part};
-    m_exchange = exchange;
+    m_rounds = rounds;
   }
 
   Vec3d toGrid(const Vec3d& world) const {
@@ -304,11 +406,13 @@ class SurfaceChecker {
   // World or of its parts.
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const {
     if (m_parts.empty()) return intersectIn(m_world, ray, hit, stats);
-    if (m_exchange) {
-      Hit h;
-      const bool found = m_exchange->closest(intersectIn(*m_parts[0], ray, h, stats), h);
-      if (found) hit = h;
-      return found;
+    if (m_rounds) {
+      RankAnswer a;
+      a.query = RankAnswer::kClosest;
+      a.found = intersectIn(*m_parts[0], ray, a.hit, stats) ? 1 : 0;
+      m_rounds->ask(a);
+      if (a.found) hit = a.hit;
+      return a.found != 0;
     }
     bool found = false;
     for (const World* part : m_parts) {
@@ -322,7 +426,13 @@ class SurfaceChecker {
   }
   bool occluded(const Ray& ray, TraversalStats& stats) const {
     if (m_parts.empty()) return occludedIn(m_world, ray, stats);
-    if (m_exchange) return m_exchange->any(occludedIn(*m_parts[0], ray, stats));
+    if (m_rounds) {
+      RankAnswer a;
+      a.query = RankAnswer::kBlocked;
+      a.found = occludedIn(*m_parts[0], ray, stats) ? 1 : 0;
+      m_rounds->ask(a);
+      return a.found != 0;
+    }
     for (const World* part : m_parts)
       if (occludedIn(*part, ray, stats)) return true;
     return false;
@@ -358,7 +468,7 @@ class SurfaceChecker {
 
   const World& m_world;
   std::vector<const World*> m_parts;
-  const RankExchange* m_exchange = nullptr;
+  LaneRounds* m_rounds = nullptr;
   RayFlow m_flow;
   const Grid& m_grid;
   Transform m_toWorld, m_toGrid;
@@ -377,6 +487,7 @@ struct AloneSurface {
   std::unique_ptr<World> world;
   std::unique_ptr<SurfaceChecker> checker;
   std::vector<std::unique_ptr<World>> parts;  // WatertightOptions::ranks, or this rank's (exchange)
+  std::unique_ptr<LaneRounds> rounds;         // under mpirun
   AloneSurface(const SceneDesc& scene, size_t v, size_t k, const IntersectorSpec& intersector, const Vec3d& offset,
                RayFlow flow, int ranks, const RankExchange* exchange = nullptr) {
     SceneDesc alone;
@@ -405,7 +516,8 @@ struct AloneSurface {
     if (exchange) {
       alone.dataPart = DataPart{exchange->rank, exchange->ranks};
       parts.push_back(std::make_unique<World>(alone, intersector));
-      checker->setRankPart(parts.back().get(), exchange);
+      rounds = std::make_unique<LaneRounds>(*exchange);
+      checker->setRankPart(parts.back().get(), rounds.get());
     }
   }
 };
@@ -437,27 +549,43 @@ std::vector<WatertightReport> checkWatertight(const SceneDesc& scene, const Inte
       alone.checker->keepCountDifferences(options.keepCountDifferences);
       tbb::enumerable_thread_specific<WatertightCounts> counts;
       tbb::enumerable_thread_specific<std::vector<FailedRay>> failures;
-      // The ranks of a job make their collectives in the same order: one ray after another, here.
-      tbb::task_arena one(1);
-      (options.exchange ? one : arena).execute([&] {
-        tbb::parallel_for(tbb::blocked_range<int>(0, options.rays, 256), [&](const tbb::blocked_range<int>& r) {
-          WatertightCounts& local = counts.local();
-          std::vector<FailedRay>* kept = options.keepFailures ? &failures.local() : nullptr;
-          TraversalStats stats;
-          for (int i = r.begin(); i < r.end(); ++i) {
-            // One generator per ray: the counts do not depend on the thread count.
-            std::mt19937_64 rng(options.seed * 0x9e3779b97f4a7c15ull + uint64_t(i) * 0xbf58476d1ce4e5b9ull + v * 131 + k);
-            const size_t before = kept ? kept->size() : 0;
-            alone.checker->one(rng, local, stats, kept && kept->size() < kMaxKeptFailures ? kept : nullptr);
-            if (kept)
-              for (size_t f = before; f < kept->size(); ++f) {
-                (*kept)[f].volume = int(v);
-                (*kept)[f].surface = int(k);
-                (*kept)[f].index = uint64_t(i);
-              }
+      // Ray i's three tests, counted into `local` (failures into `kept`, if kept).
+      auto testRay = [&](int i, WatertightCounts& local, std::vector<FailedRay>* kept, TraversalStats& stats) {
+        // One generator per ray: the counts do not depend on the thread count.
+        std::mt19937_64 rng(options.seed * 0x9e3779b97f4a7c15ull + uint64_t(i) * 0xbf58476d1ce4e5b9ull + v * 131 + k);
+        const size_t before = kept ? kept->size() : 0;
+        alone.checker->one(rng, local, stats, kept && kept->size() < kMaxKeptFailures ? kept : nullptr);
+        if (kept)
+          for (size_t f = before; f < kept->size(); ++f) {
+            (*kept)[f].volume = int(v);
+            (*kept)[f].surface = int(k);
+            (*kept)[f].index = uint64_t(i);
           }
+      };
+      if (alone.rounds) {
+        // Under mpirun: on the rounds' lanes (their queries go through the ranks together).
+        std::vector<WatertightCounts> laneCounts(LaneRounds::kLanes);
+        std::vector<std::vector<FailedRay>> laneFailures(LaneRounds::kLanes);
+        std::vector<TraversalStats> laneStats(LaneRounds::kLanes);
+        alone.rounds->run(options.rays, [&](int i, int lane) {
+          testRay(i, laneCounts[size_t(lane)], options.keepFailures ? &laneFailures[size_t(lane)] : nullptr,
+                  laneStats[size_t(lane)]);
         });
-      });
+        for (int l = 0; l < LaneRounds::kLanes; ++l) {
+          counts.local().add(laneCounts[size_t(l)]);
+          std::vector<FailedRay>& f = failures.local();
+          f.insert(f.end(), laneFailures[size_t(l)].begin(), laneFailures[size_t(l)].end());
+        }
+      } else {
+        arena.execute([&] {
+          tbb::parallel_for(tbb::blocked_range<int>(0, options.rays, 256), [&](const tbb::blocked_range<int>& r) {
+            WatertightCounts& local = counts.local();
+            std::vector<FailedRay>* kept = options.keepFailures ? &failures.local() : nullptr;
+            TraversalStats stats;
+            for (int i = r.begin(); i < r.end(); ++i) testRay(i, local, kept, stats);
+          });
+        });
+      }
       WatertightReport report;
       report.volume = int(v);
       report.volumeName = alone.desc.field ? "procedural" : alone.desc.file;

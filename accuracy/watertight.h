@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "scene/scene.h"
+#include "scene/world.h"  // Hit (RankAnswer)
 
 namespace iso {
 
@@ -74,19 +75,28 @@ struct WatertightReport {
   std::vector<FailedRay> failures;  // when WatertightOptions::keepFailures, in ray order
 };
 
-struct Hit;
+
+// One query's answer on one rank, as the ranks exchange them (RankExchange::combine).
+struct RankAnswer {
+  enum Query : int32_t { kNone = 0, kClosest = 1, kBlocked = 2 };
+  int32_t query = kNone;  // kNone: the lane asks nothing this round (its rays are done)
+  int32_t found = 0;      // kClosest: a hit found (in `hit`); kBlocked: the segment is blocked
+  Hit hit;
+};
 
 // Under mpirun (`isotrace watertight --data-parallel`): this process is rank `rank` of a
 // data-parallel job; its World holds only its part of each volume (SceneDesc::dataPart, as in
-// `render --data-parallel`), and every query's answer is combined with the other ranks' by
-// collectives that every rank makes in the same order (the rays run one at a time). The
-// reference and the classes stay the whole volume's, on every rank.
+// `render --data-parallel`), and every query's answer is combined with the other ranks'. The
+// rays are tested on lanes (ray i on lane i mod lanes, a thread each), and the lanes' queries go
+// through the ranks in rounds: each round one collective carries one query of every lane. Every
+// rank makes the same rounds, since every rank gets the same combined answers. The reference and
+// the classes stay the whole volume's, on every rank.
 struct RankExchange {
   int rank = 0, ranks = 1;
-  // The closest of the ranks' hits (of equal ones the lowest rank's) into `hit`; whether any found one.
-  std::function<bool(bool found, Hit& hit)> closest;
-  // Whether any rank's answer is true (a shadow segment blocked on some rank).
-  std::function<bool(bool blocked)> any;
+  // Collective: this rank's answers to a round's queries in (the same queries, lane by lane, on
+  // every rank), the ranks' combined answers out: for kClosest the closest of the hits found (of
+  // equal ones the lowest rank's), for kBlocked whether any rank's segment is blocked.
+  std::function<void(std::vector<RankAnswer>& answers)> combine;
   // The lowest rank's error ("" if none), on every rank: a failure on one rank ends all.
   std::function<std::string(const std::string& mine)> firstError;
 };

@@ -106,30 +106,30 @@ std::string MpiJob::firstError(const std::string& mine) const {
 }
 
 RankExchange MpiJob::rankExchange() const {
-  static_assert(std::is_trivially_copyable_v<Hit>, "hits go between ranks as bytes");
+  static_assert(std::is_trivially_copyable_v<RankAnswer>, "answers go between ranks as bytes");
   RankExchange x;
   x.rank = m_rank;
   x.ranks = m_size;
-  x.closest = [size = m_size](bool found, Hit& hit) {
-    struct Answer {
-      int found;
-      Hit hit;
-    };
-    Answer mine{found ? 1 : 0, hit};
-    std::vector<Answer> all(static_cast<size_t>(size));
-    MPI_Allgather(&mine, int(sizeof mine), MPI_BYTE, all.data(), int(sizeof mine), MPI_BYTE, MPI_COMM_WORLD);
-    bool any = false;
-    for (const Answer& a : all)  // the closest; of equal ones the lowest rank's (as one process's parts)
-      if (a.found && (!any || a.hit.t < hit.t)) {
-        hit = a.hit;
-        any = true;
+  x.combine = [size = m_size](std::vector<RankAnswer>& answers) {
+    // One all-gather of every lane's answer; each rank combines them alike, rank by rank.
+    const size_t lanes = answers.size();
+    std::vector<RankAnswer> all(lanes * size_t(size));
+    const int bytes = int(lanes * sizeof(RankAnswer));
+    MPI_Allgather(answers.data(), bytes, MPI_BYTE, all.data(), bytes, MPI_BYTE, MPI_COMM_WORLD);
+    for (size_t l = 0; l < lanes; ++l) {
+      RankAnswer& a = answers[l];
+      a.found = 0;
+      for (int r = 0; r < size; ++r) {
+        const RankAnswer& theirs = all[size_t(r) * lanes + l];
+        if (!theirs.found) continue;
+        if (a.query == RankAnswer::kBlocked) {
+          a.found = 1;
+        } else if (!a.found || theirs.hit.t < a.hit.t) {  // the closest; of equal ones the lowest rank's
+          a.hit = theirs.hit;
+          a.found = 1;
+        }
       }
-    return any;
-  };
-  x.any = [](bool blocked) {
-    int mine = blocked ? 1 : 0, some = 0;
-    MPI_Allreduce(&mine, &some, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
-    return some != 0;
+    }
   };
   x.firstError = [this](const std::string& mine) { return firstError(mine); };
   return x;
