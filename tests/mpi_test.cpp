@@ -8,11 +8,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 
 #include "tests/test_util.h"
@@ -385,6 +387,52 @@ TEST(Mpi, WatertightAcrossRanksUnderMpirun) {
   EXPECT_EQ(r.status, 2) << r.err;
   EXPECT_NE(r.err.find("isotrace: rank 1 of 2: " + dir + "/gone_8x8x8_uint8.raw"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("isotrace:", r.err.find("isotrace:") + 1), std::string::npos) << "one line: " << r.err;
+}
+
+// The hostile cases of a data-parallel run: a rank killed mid-frame ends the whole run (mpirun
+// names it; nobody waits for its answers forever), and a truncated OpenVDB file on one rank only
+// is one line from rank 0 naming that rank, no image.
+TEST(Mpi, DataParallelRankLostOrBadFileEndsTheRun) {
+  const std::string dir = test::scratchDir();
+  const std::string vdb = test::dataPath("volumes/smoke.vdb");
+  auto scene = [&](const std::string& file) {
+    return R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 4},
+      "volumes": [{"file": ")" + file + R"(", "isosurfaces": [{"value": 0.2}]}]})";
+  };
+  test::writeText(dir + "/good.json", scene(vdb));
+  const std::string image = dir + "/out.exr";
+  const auto t0 = std::chrono::steady_clock::now();
+  {
+    test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/good.json --data-parallel --spp 1000000 --threads 1 -o " +
+                      image + " >/dev/null");
+    ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();  // every rank is past loading
+    const std::vector<pid_t> ranks = test::processesWithArgument(ISOTRACE_BINARY, dir + "/good.json");
+    ASSERT_EQ(ranks.size(), 2u) << run.err();
+    kill(std::max(ranks[0], ranks[1]), SIGKILL);  // (the later one started: not necessarily rank 1)
+    EXPECT_NE(run.wait(), 0) << run.err();
+    EXPECT_NE(run.err().find("rank"), std::string::npos) << run.err();
+    EXPECT_FALSE(fs::exists(image));
+  }
+  // The same file cut short, on rank 1 only (MPMD).
+  std::string bytes;
+  {
+    std::ifstream in(vdb, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_GT(bytes.size(), 1000u);
+  {
+    std::ofstream out(dir + "/cut.vdb", std::ios::binary);
+    out.write(bytes.data(), std::streamsize(bytes.size() / 2));
+  }
+  test::writeText(dir + "/cut.json", scene(dir + "/cut.vdb"));
+  const std::string common = " render --data-parallel --quiet --threads 1 -o " + image + " ";
+  const auto r = runCommand(mpirun(1) + ISOTRACE_BINARY + common + dir + "/good.json : -np 1 " + ISOTRACE_BINARY + common +
+                            dir + "/cut.json");
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("isotrace: rank 1 of 2: " + dir + "/cut.vdb"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("isotrace:", r.err.find("isotrace:") + 1), std::string::npos) << "one line: " << r.err;
+  EXPECT_FALSE(fs::exists(image));
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 100) << "no hang";
 }
 
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
