@@ -269,6 +269,15 @@ TEST(DataParallel, OpenVdbWindowsKeepOnlyTheirBricks) {
   ASSERT_NE(whole.grid.sparse(), nullptr);
   expectRangesOf(whole.grid, path);
   const BrickGrid bricks(whole.grid);
+  // The ranges read a row of bricks at a time (each row's leaves alone, in a child of its own)
+  // are the whole grid's.
+  const BrickGrid byRows = vdbBrickRanges(path, "", 1);
+  ASSERT_EQ(byRows.size(), bricks.size());
+  ASSERT_GT(bricks.count().z, 2);
+  size_t rangesDiffer = 0;
+  for (uint32_t b = 0; b < bricks.size(); ++b)
+    rangesDiffer += byRows.brickMin(b) != bricks.brickMin(b) || byRows.brickMax(b) != bricks.brickMax(b);
+  EXPECT_EQ(rangesDiffer, 0u);
   for (int ranks : {2, 3}) {
     std::vector<int> activeOn(bricks.size(), 0);
     for (const RankBox& box : boxesOf(whole.grid, 0.2f, ranks)) {

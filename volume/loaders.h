@@ -81,11 +81,16 @@ BrickGrid dicomBrickRanges(const std::string& path, const std::string& series = 
 // OpenVDB (volume/vdb.cpp): one float or double grid (`grid`: its name) over its active
 // bounding box plus one voxel, placed by the grid's transform; sparse (Grid::sparse()), or a
 // dense copy when `dense` (tests compare the two). With `window`, only the bricks whose blocks
-// reach into it keep their samples (the file is read whole in the reader's child process).
+// reach into it keep their samples, and only their leaves are read (the grid read clipped to
+// them, in the reader's child process, laid out by the whole grid's bounding-box metadata; a file
+// without that metadata is read whole).
 VolumeFile loadVdb(const std::string& path, const std::string& grid = "", bool dense = false,
                    const SampleWindow* window = nullptr);
-// The sparse grid's brick ranges (in a child process).
-BrickGrid vdbBrickRanges(const std::string& path, const std::string& grid = "");
+// The sparse grid's brick ranges: rows of bricks along z, each run of rows in a child process
+// that reads only their leaves (at most about `samplesPerChild` samples' worth of rows; at least
+// one row), so that no process holds the whole grid (a file without bounding-box metadata: read
+// whole, in one child).
+BrickGrid vdbBrickRanges(const std::string& path, const std::string& grid = "", int64_t samplesPerChild = int64_t(1) << 24);
 
 // Splits an index-to-world affine (3x4: voxel (i, j, k, 1) -> world) into the grid's spacing
 // (the columns' lengths), its origin (when the axes are the world's) and what is left as

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <optional>
 
 #include "volume/input_error.h"
 #include "volume/input_file.h"
@@ -77,24 +78,38 @@ VolumeFile toDense(const GridT& grid, const std::string& path) {
 struct SparseLayout {
   openvdb::Coord origin;
   Vec3i bricks;
+  Vec3i dims() const { return {8 * bricks.x + 1, 8 * bricks.y + 1, 8 * bricks.z + 1}; }
+  // Index box of the samples of bricks [b0, b1) (each brick's 9^3: its last layer is the next's first).
+  openvdb::CoordBBox samplesOf(const Vec3i& b0, const Vec3i& b1) const {
+    return openvdb::CoordBBox(origin + openvdb::Coord(8 * b0.x, 8 * b0.y, 8 * b0.z),
+                              origin + openvdb::Coord(8 * b1.x, 8 * b1.y, 8 * b1.z));
+  }
 };
 
-template <typename GridT>
-VolumeFile toSparse(const GridT& grid, const std::string& path) {
-  openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
-  if (box.empty()) throw InputError(path, "grid '" + grid.getName() + "'", "has no active voxels");
+SparseLayout sparseLayout(openvdb::CoordBBox box, const std::string& path, const std::string& gridName) {
+  if (box.empty()) throw InputError(path, "grid '" + gridName + "'", "has no active voxels");
   box.expand(1);
   auto down8 = [](int v) { return v >= 0 ? v / 8 * 8 : -((-v + 7) / 8 * 8); };
-  const openvdb::Coord origin(down8(box.min().x()), down8(box.min().y()), down8(box.min().z()));
-  Vec3i bricks;
+  SparseLayout l;
+  l.origin = openvdb::Coord(down8(box.min().x()), down8(box.min().y()), down8(box.min().z()));
   for (int a = 0; a < 3; ++a) {
-    const int64_t cells = int64_t(box.max()[a]) - origin[a];
-    bricks[a] = int(std::max<int64_t>(1, (cells + 7) / 8));
-    if (bricks[a] > (1 << 17)) throw InputError(path, "grid '" + grid.getName() + "'", "its active box is beyond 2^20 voxels on an axis");
+    const int64_t cells = int64_t(box.max()[a]) - l.origin[a];
+    l.bricks[a] = int(std::max<int64_t>(1, (cells + 7) / 8));
+    if (l.bricks[a] > (1 << 17)) throw InputError(path, "grid '" + gridName + "'", "its active box is beyond 2^20 voxels on an axis");
   }
+  if (size_t(l.bricks.x) * l.bricks.y * l.bricks.z > (size_t(1) << 28))
+    throw InputError(path, "grid '" + gridName + "'", "its active box holds more than 2^28 bricks of 8^3 voxels");
+  return l;
+}
+
+// The grid as sparse bricks laid out by `layout` (by default its own active box's: a grid read
+// clipped to a window is laid out as the whole grid is, so that its bricks are the same).
+template <typename GridT>
+VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayout* given = nullptr) {
+  const SparseLayout layout = given ? *given : sparseLayout(grid.evalActiveVoxelBoundingBox(), path, grid.getName());
+  const openvdb::Coord origin = layout.origin;
+  const Vec3i bricks = layout.bricks;
   const size_t brickCount = size_t(bricks.x) * bricks.y * bricks.z;
-  if (brickCount > (size_t(1) << 28))
-    throw InputError(path, "grid '" + grid.getName() + "'", "its active box holds more than 2^28 bricks of 8^3 voxels");
   // Bricks whose block reaches into a leaf: a leaf at 8m (relative) is read by bricks m - 1 and m.
   std::vector<uint8_t> touched(brickCount, 0);
   auto brickIndex = [&](int x, int y, int z) { return (size_t(z) * bricks.y + y) * bricks.x + x; };
@@ -232,7 +247,18 @@ Grid sparseWindow(const Grid& grid, const SampleWindow& w) {
   return Grid(grid.dims(), std::move(sparse), w.first, w.extent, grid.origin(), grid.spacing());
 }
 
-VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense);
+// A read of part of a grid: the samples in the index box `samples` (only the leaves there are
+// loaded: OpenVDB reads the file clipped), as the sparse grid `layout` (the whole grid's) holds them.
+struct VdbPart {
+  SparseLayout layout;
+  openvdb::CoordBBox samples;
+};
+
+VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense, const VdbPart* part = nullptr);
+// The whole grid's sparse layout from its metadata (the active box OpenVDB stores with a grid it
+// writes: file_bbox_min / file_bbox_max), without reading its leaves; none if the file has no such
+// metadata.
+std::optional<SparseLayout> layoutFromMetadata(const std::string& path, const std::string& gridName);
 
 void checkVdbPath(const std::string& path) {
   std::error_code ec;
@@ -241,14 +267,52 @@ void checkVdbPath(const std::string& path) {
   checkInputFile(path, "file", false);
 }
 
+// The whole grid's sparse layout, read in a child process (none: the file has no bounding-box
+// metadata, or the grid is to be held dense).
+std::optional<SparseLayout> metadataLayout(const std::string& path, const std::string& gridName) {
+  const ChildOutput out = runInChildProcess(path, "OpenVDB", [&](int) {
+    const std::optional<SparseLayout> l = layoutFromMetadata(path, gridName);
+    if (!l) return std::string();
+    const int32_t v[6] = {l->origin.x(), l->origin.y(), l->origin.z(), l->bricks.x, l->bricks.y, l->bricks.z};
+    return std::string(reinterpret_cast<const char*>(v), sizeof v);
+  });
+  if (out.report.empty()) return std::nullopt;
+  int32_t v[6];
+  if (out.report.size() != sizeof v) throw InputError(path, "", "OpenVDB's reader gave back a malformed layout");
+  std::memcpy(v, out.report.data(), sizeof v);
+  SparseLayout l;
+  l.origin = openvdb::Coord(v[0], v[1], v[2]);
+  l.bricks = {v[3], v[4], v[5]};
+  for (int a = 0; a < 3; ++a)
+    if (l.bricks[a] < 1 || l.bricks[a] > (1 << 17)) throw InputError(path, "", "OpenVDB's reader gave back a malformed layout");
+  return l;
+}
+
 }  // namespace
 
 VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool dense, const SampleWindow* window) {
   checkVdbPath(path);
+  // A rank's window of a sparse grid: only the leaves of the bricks that reach into the window are
+  // read (the grid read clipped to them), laid out as the whole grid is (its metadata says where).
+  std::optional<SparseLayout> layout;
+  if (window && !dense) layout = metadataLayout(path, gridName);
   // OpenVDB trusts the sizes in its streams (the fuzzer makes it ask for 2^56 bytes): it reads
   // in a child process.
   return readInChildProcess(path, "OpenVDB", [&] {
-    VolumeFile f = readVdb(path, gridName, dense);
+    VolumeFile f;
+    if (layout) {
+      checkWindow(*window, layout->dims(), path);
+      Vec3i b0, b1;  // the bricks whose 9^3 samples reach into the window (sparseWindow keeps those)
+      for (int a = 0; a < 3; ++a) {  // 8 b + 8 >= first and 8 b <= last
+        const int first = window->first[a], last = first + window->extent[a] - 1;
+        b0[a] = first <= 8 ? 0 : (first - 8 + 7) / 8;
+        b1[a] = std::min(layout->bricks[a], last / 8 + 1);
+      }
+      const VdbPart part{*layout, layout->samplesOf(b0, b1)};
+      f = readVdb(path, gridName, false, &part);
+    } else {
+      f = readVdb(path, gridName, dense);
+    }
     if (window) {
       checkWindow(*window, f.grid.dims(), path);
       f.grid = dense ? windowOf(f.grid, window->first, window->extent) : sparseWindow(f.grid, *window);
@@ -257,14 +321,69 @@ VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool de
   });
 }
 
-BrickGrid vdbBrickRanges(const std::string& path, const std::string& gridName) {
+BrickGrid vdbBrickRanges(const std::string& path, const std::string& gridName, int64_t samplesPerChild) {
   checkVdbPath(path);
-  return rangesInChildProcess(path, "OpenVDB", [&] { return BrickGrid(readVdb(path, gridName, false).grid); });
+  const std::optional<SparseLayout> layout = metadataLayout(path, gridName);
+  if (!layout) return rangesInChildProcess(path, "OpenVDB", [&] { return BrickGrid(readVdb(path, gridName, false).grid); });
+  // Runs of rows of bricks along z, in children that each read only their rows' leaves (the grid
+  // read clipped): no process holds the whole grid.
+  const Vec3i dims = layout->dims();
+  const size_t bricks = size_t(layout->bricks.x) * layout->bricks.y * layout->bricks.z;
+  const int rowsPerChild = int(std::clamp<int64_t>(samplesPerChild / (int64_t(dims.x) * dims.y * 8), 1, layout->bricks.z));
+  std::vector<float> lo, hi;
+  lo.reserve(bricks);
+  hi.reserve(bricks);
+  for (int z0 = 0; z0 < layout->bricks.z; z0 += rowsPerChild) {
+    const int z1 = std::min(layout->bricks.z, z0 + rowsPerChild);
+    SparseLayout rows = *layout;  // the rows as a grid of their own
+    rows.origin = layout->origin + openvdb::Coord(0, 0, 8 * z0);
+    rows.bricks.z = z1 - z0;
+    const BrickGrid part = rangesInChildProcess(path, "OpenVDB", [&] {
+      const VdbPart p{rows, rows.samplesOf({0, 0, 0}, rows.bricks)};
+      return BrickGrid(readVdb(path, gridName, false, &p).grid);
+    });
+    if (part.size() != size_t(rows.bricks.x) * rows.bricks.y * rows.bricks.z)
+      throw InputError(path, "", "OpenVDB's reader gave back malformed brick ranges");
+    for (uint32_t b = 0; b < part.size(); ++b) {  // (rows along z are consecutive runs of bricks)
+      lo.push_back(part.brickMin(b));
+      hi.push_back(part.brickMax(b));
+    }
+  }
+  return BrickGrid::fromRanges(dims, lo.data(), hi.data(), bricks);
 }
 
 namespace {
 
-VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense) {
+std::optional<SparseLayout> layoutFromMetadata(const std::string& path, const std::string& gridName) {
+  openvdb::initialize();
+  try {
+    openvdb::io::File file(path);
+    file.open(false);
+    const openvdb::GridPtrVecPtr metadata = file.readAllGridMetadata();
+    file.close();
+    new openvdb::GridPtrVecPtr(metadata);  // (never freed: see readVdb)
+    for (const openvdb::GridBase::Ptr& g : *metadata) {
+      const bool scalar = g->isType<openvdb::FloatGrid>() || g->isType<openvdb::DoubleGrid>();
+      if (!(gridName.empty() ? scalar : g->getName() == gridName)) continue;
+      const auto lo = g->getMetadata<openvdb::TypedMetadata<openvdb::Vec3i>>(openvdb::GridBase::META_FILE_BBOX_MIN);
+      const auto hi = g->getMetadata<openvdb::TypedMetadata<openvdb::Vec3i>>(openvdb::GridBase::META_FILE_BBOX_MAX);
+      if (!lo || !hi) return std::nullopt;
+      const openvdb::Vec3i a = lo->value(), b = hi->value();
+      return sparseLayout(openvdb::CoordBBox(openvdb::Coord(a), openvdb::Coord(b)), path, g->getName());
+    }
+    return std::nullopt;  // (no such grid: the whole read says so)
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw InputError(path, "", std::string("not a readable OpenVDB file (") + e.what() + ")");
+  }
+}
+
+}  // namespace
+
+namespace {
+
+VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense, const VdbPart* part) {
   openvdb::initialize();
   try {
     openvdb::io::File file(path);
@@ -281,17 +400,42 @@ VolumeFile readVdb(const std::string& path, const std::string& gridName, bool de
     if (!gridName.empty() && !chosen)
       throw InputError(path, "", "no grid '" + gridName + "'; the file holds " + (names.empty() ? "none" : names));
     if (!chosen) throw InputError(path, "", "no float or double grid; the file holds " + (names.empty() ? "none" : names));
-    const openvdb::GridBase::Ptr grid = file.readGrid(chosen->getName());
+    openvdb::GridBase::Ptr grid;
+    if (part) {
+      // The part's index box, one voxel wider (OpenVDB rounds the world box back to voxels), in
+      // world space: the leaves outside it are skipped, not loaded.
+      openvdb::CoordBBox box = part->samples;
+      box.expand(1);
+      openvdb::BBoxd world;
+      for (int c = 0; c < 8; ++c) {
+        const openvdb::Coord corner((c & 1) ? box.max().x() : box.min().x(), (c & 2) ? box.max().y() : box.min().y(),
+                                    (c & 4) ? box.max().z() : box.min().z());
+        world.expand(chosen->transform().indexToWorld(corner));
+      }
+      grid = file.readGrid(chosen->getName(), world);
+    } else {
+      grid = file.readGrid(chosen->getName());
+    }
     file.close();
     // Never freed: OpenVDB frees a tree's nodes in a tbb::parallel_for, and this runs in a reader
     // child, which must not enter TBB (loaders.h, inReaderChild); the child's _exit frees it all.
     new openvdb::GridPtrVecPtr(metadata);
     new openvdb::GridBase::Ptr(grid);
     VolumeFile out;
+    const SparseLayout* layout = part ? &part->layout : nullptr;
+    if (part) {
+      // The metadata's box must hold what the part read is active over (a file whose metadata is
+      // wrong would give other bricks than the whole read).
+      openvdb::CoordBBox active = grid->evalActiveVoxelBoundingBox();
+      active.intersect(part->samples);
+      const openvdb::CoordBBox whole = part->layout.samplesOf({0, 0, 0}, part->layout.bricks);
+      if (!active.empty() && !(whole.isInside(active)))
+        throw InputError(path, "grid '" + chosen->getName() + "'", "its bounding-box metadata does not hold its active voxels");
+    }
     if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(grid))
-      out = dense ? toDense(*f, path) : toSparse(*f, path);
+      out = dense ? toDense(*f, path) : toSparse(*f, path, layout);
     else if (auto d = openvdb::gridPtrCast<openvdb::DoubleGrid>(grid))
-      out = dense ? toDense(*d, path) : toSparse(*d, path);
+      out = dense ? toDense(*d, path) : toSparse(*d, path, layout);
     else
       throw InputError(path, "grid '" + chosen->getName() + "'", "is of type " + grid->valueType() + "; float or double grids only");
     out.notes.push_back("grids in the file: " + names);
