@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# bench/data_parallel_memory.sh [N] [RANKS] [nrrd|nifti]: what a data-parallel render saves in memory. An
+# bench/data_parallel_memory.sh [N] [RANKS] [nrrd|nifti|vdb]: what a data-parallel render saves in memory. An
 # N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) — or with `nrrd`, an N^3 uint16
 # gyroid written as a NRRD of one file per slice (N = 1024: 2 GiB; python3-numpy), with `nifti` as
 # one NIfTI-1 file of int16 samples scaled by scl_slope (2 GiB in the file, float32 in memory: 4 GiB;
-# python3-nibabel) — rendered by one process and by
+# python3-nibabel), with `vdb` as an OpenVDB fog volume with every voxel active (float32; written by
+# build/bench/make_vdb_sphere --gyroid) — rendered by one process and by
 # RANKS ranks with --data-parallel (mpirun, oversubscribed if the machine has fewer cores); prints
 # each process's peak resident memory (GNU time), the process's own base (the same render of an
 # 8^3 volume), each rank's share of the single process's peak beyond that base, and whether the
@@ -16,8 +17,8 @@ ranks=${2:-4}
 kind=${3:-procedural}
 [[ "$n" =~ ^[0-9]+$ && "$ranks" =~ ^[0-9]+$ && "$n" -ge 16 && "$ranks" -ge 2 ]] ||
   { echo "data_parallel_memory: expected N >= 16 and RANKS >= 2" >&2; exit 2; }
-[[ "$kind" == procedural || "$kind" == nrrd || "$kind" == nifti ]] ||
-  { echo "data_parallel_memory: the third argument is 'nrrd', 'nifti' or nothing" >&2; exit 2; }
+[[ "$kind" == procedural || "$kind" == nrrd || "$kind" == nifti || "$kind" == vdb ]] ||
+  { echo "data_parallel_memory: the third argument is 'nrrd', 'nifti', 'vdb' or nothing" >&2; exit 2; }
 isotrace=${ISOTRACE:-build/isotrace}
 [ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 work=$(mktemp -d)
@@ -66,7 +67,11 @@ with open(folder + "/field.nii", "wb") as f:
 PY
 }
 scene() {  # RESOLUTION
-  if [ "$kind" = nifti ]; then
+  if [ "$kind" = vdb ]; then
+    [ -f "$work/f$1.vdb" ] || "$(dirname "$isotrace")/bench/make_vdb_sphere" --gyroid "$1" "$work/f$1.vdb" > /dev/null
+    volume="\"file\": \"$work/f$1.vdb\""
+    iso=0
+  elif [ "$kind" = nifti ]; then
     [ -f "$work/f$1/field.nii" ] || writeNifti "$1" "$work/f$1"
     volume="\"file\": \"$work/f$1/field.nii\""
     iso=-100
@@ -98,7 +103,9 @@ base=$(peak "$work/base.txt")
 one=$(peak "$work/one.txt")
 same=no
 oiiotool --fail 0 --failpercent 0 "$work/one.exr" "$work/many.exr" --diff > /dev/null 2>&1 && same=yes
-if [ "$kind" = nifti ]; then
+if [ "$kind" = vdb ]; then
+  echo "volume ${n}^3 float32, an OpenVDB fog volume with every voxel active, $ranks ranks; peak resident memory, MiB:"
+elif [ "$kind" = nifti ]; then
   echo "volume ${n}^3 int16 scaled to float32, one NIfTI-1 file ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
 elif [ "$kind" = nrrd ]; then
   echo "volume ${n}^3 uint16, a NRRD of $n slice files ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"

@@ -78,6 +78,13 @@ VolumeFile toDense(const GridT& grid, const std::string& path) {
 struct SparseLayout {
   openvdb::Coord origin;
   Vec3i bricks;
+  // The bricks whose samples are read, [keep0, keep1) (by default all): the others hold 0 (a
+  // window's reader keeps only the bricks that reach into the window; the tree read clipped to
+  // them has only their leaves' values loaded).
+  Vec3i keep0{0, 0, 0}, keep1{0, 0, 0};
+  bool keeps(int x, int y, int z) const {
+    return x >= keep0.x && y >= keep0.y && z >= keep0.z && x < keep1.x && y < keep1.y && z < keep1.z;
+  }
   Vec3i dims() const { return {8 * bricks.x + 1, 8 * bricks.y + 1, 8 * bricks.z + 1}; }
   // Index box of the samples of bricks [b0, b1) (each brick's 9^3: its last layer is the next's first).
   openvdb::CoordBBox samplesOf(const Vec3i& b0, const Vec3i& b1) const {
@@ -99,13 +106,15 @@ SparseLayout sparseLayout(openvdb::CoordBBox box, const std::string& path, const
   }
   if (size_t(l.bricks.x) * l.bricks.y * l.bricks.z > (size_t(1) << 28))
     throw InputError(path, "grid '" + gridName + "'", "its active box holds more than 2^28 bricks of 8^3 voxels");
+  l.keep1 = l.bricks;
   return l;
 }
 
 // The grid as sparse bricks laid out by `layout` (by default its own active box's: a grid read
 // clipped to a window is laid out as the whole grid is, so that its bricks are the same).
 template <typename GridT>
-VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayout* given = nullptr) {
+VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayout* given = nullptr,
+                    const SampleWindow* window = nullptr) {
   const SparseLayout layout = given ? *given : sparseLayout(grid.evalActiveVoxelBoundingBox(), path, grid.getName());
   const openvdb::Coord origin = layout.origin;
   const Vec3i bricks = layout.bricks;
@@ -162,7 +171,10 @@ VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayo
         const size_t b = brickIndex(bx, by, bz);
         const openvdb::Coord at = base(bx, by, bz);
         bool varies;
-        if (touched[b]) {
+        if (!layout.keeps(bx, by, bz)) {
+          block[0] = 0;
+          varies = false;
+        } else if (touched[b]) {
           varies = fill(at, block);
         } else {
           // Only tiles and background here, all aligned to 8: the block's 8 regions are those
@@ -195,8 +207,12 @@ VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayo
   sparse->owner = storage;
   VolumeFile out;
   out.format = "OpenVDB";
-  out.grid = Grid(Vec3i{8 * bricks.x + 1, 8 * bricks.y + 1, 8 * bricks.z + 1}, std::move(sparse));
+  const Vec3i dims{8 * bricks.x + 1, 8 * bricks.y + 1, 8 * bricks.z + 1};
+  out.grid = Grid(dims, sparse);
   place(grid, origin, out, path);
+  // A window's bricks were the only ones read (layout.keep0/keep1): the grid is that window as is
+  // (what sparseWindow would copy).
+  if (window) out.grid = Grid(dims, sparse, window->first, window->extent, out.grid.origin(), out.grid.spacing());
   out.notes.push_back(describe(grid) + "; held sparse: " + std::to_string(stored) + " of " + std::to_string(brickCount) +
                       " bricks of 8^3 cells stored, the others one value each");
   return out;
@@ -252,6 +268,7 @@ Grid sparseWindow(const Grid& grid, const SampleWindow& w) {
 struct VdbPart {
   SparseLayout layout;
   openvdb::CoordBBox samples;
+  const SampleWindow* window = nullptr;  // the grid is this window (layout.keep0/keep1: the bricks that reach into it)
 };
 
 VolumeFile readVdb(const std::string& path, const std::string& gridName, bool dense, const VdbPart* part = nullptr);
@@ -283,6 +300,7 @@ std::optional<SparseLayout> metadataLayout(const std::string& path, const std::s
   SparseLayout l;
   l.origin = openvdb::Coord(v[0], v[1], v[2]);
   l.bricks = {v[3], v[4], v[5]};
+  l.keep1 = l.bricks;
   for (int a = 0; a < 3; ++a)
     if (l.bricks[a] < 1 || l.bricks[a] > (1 << 17)) throw InputError(path, "", "OpenVDB's reader gave back a malformed layout");
   return l;
@@ -308,11 +326,13 @@ VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool de
         b0[a] = first <= 8 ? 0 : (first - 8 + 7) / 8;
         b1[a] = std::min(layout->bricks[a], last / 8 + 1);
       }
-      const VdbPart part{*layout, layout->samplesOf(b0, b1)};
-      f = readVdb(path, gridName, false, &part);
-    } else {
-      f = readVdb(path, gridName, dense);
+      SparseLayout kept = *layout;
+      kept.keep0 = b0;
+      kept.keep1 = b1;
+      const VdbPart part{kept, layout->samplesOf(b0, b1), window};
+      return readVdb(path, gridName, false, &part);
     }
+    f = readVdb(path, gridName, dense);
     if (window) {
       checkWindow(*window, f.grid.dims(), path);
       f.grid = dense ? windowOf(f.grid, window->first, window->extent) : sparseWindow(f.grid, *window);
@@ -338,6 +358,7 @@ BrickGrid vdbBrickRanges(const std::string& path, const std::string& gridName, i
     SparseLayout rows = *layout;  // the rows as a grid of their own
     rows.origin = layout->origin + openvdb::Coord(0, 0, 8 * z0);
     rows.bricks.z = z1 - z0;
+    rows.keep1 = rows.bricks;
     const BrickGrid part = rangesInChildProcess(path, "OpenVDB", [&] {
       const VdbPart p{rows, rows.samplesOf({0, 0, 0}, rows.bricks)};
       return BrickGrid(readVdb(path, gridName, false, &p).grid);
@@ -387,7 +408,7 @@ VolumeFile readVdb(const std::string& path, const std::string& gridName, bool de
   openvdb::initialize();
   try {
     openvdb::io::File file(path);
-    file.open(false);  // no delayed loading: the file is read now, and closed
+    file.open(false);  // no delayed loading: the file is read now, and closed (a part: only its leaves are kept)
     const openvdb::GridPtrVecPtr metadata = file.readAllGridMetadata();
     std::string names;
     openvdb::GridBase::Ptr chosen;
@@ -433,9 +454,9 @@ VolumeFile readVdb(const std::string& path, const std::string& gridName, bool de
         throw InputError(path, "grid '" + chosen->getName() + "'", "its bounding-box metadata does not hold its active voxels");
     }
     if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(grid))
-      out = dense ? toDense(*f, path) : toSparse(*f, path, layout);
+      out = dense ? toDense(*f, path) : toSparse(*f, path, layout, part ? part->window : nullptr);
     else if (auto d = openvdb::gridPtrCast<openvdb::DoubleGrid>(grid))
-      out = dense ? toDense(*d, path) : toSparse(*d, path, layout);
+      out = dense ? toDense(*d, path) : toSparse(*d, path, layout, part ? part->window : nullptr);
     else
       throw InputError(path, "grid '" + chosen->getName() + "'", "is of type " + grid->valueType() + "; float or double grids only");
     out.notes.push_back("grids in the file: " + names);
