@@ -352,7 +352,6 @@ struct Round {
 
 RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                      const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
-  const auto start = Clock::now();
   const int w = film.width(), h = film.height(), ranks = job.size(), rank = job.rank();
   const TileRenderer tiles(camera, integrator, options, w, h);
   const World& world = integrator.world();
@@ -371,6 +370,11 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { pixels.emplace_back(x, y); });
   }
   sums.resize(pixels.size());
+  // Rank 0's frame, which gathers every rank's tiles. Both are allocated (and zeroed) before the
+  // frame's clock starts, as renderFrame allocates its sums: the render seconds of one process and
+  // of the ranks count the same work.
+  std::vector<PixelSums> frame(rank == 0 ? size_t(w) * size_t(h) : 0);
+  const auto start = Clock::now();
   // The answers to the round's stage, to its paths, on this rank's threads.
   auto deliver = [&](Round& round) {
     const RayBatch& b = round.flight.batch;
@@ -472,7 +476,6 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   // Rank by rank, point to point, in pieces of at most 64 MiB (a large image's sums pass 2 GiB,
   // MPI's counts are int), rank 0 placing each tile's pixels straight into the frame's sums.
   constexpr size_t kChunk = (size_t(64) << 20) / sizeof(PixelSums);
-  std::vector<PixelSums> frame(rank == 0 ? size_t(w) * size_t(h) : 0);
   auto place = [&](const std::vector<int>& ids, auto&& next) {  // next(): the next pixel's sums
     for (int tile : ids)
       forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { frame[size_t(y) * size_t(w) + size_t(x)] = next(); });
