@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "renderer/commands.h"
+#include "renderer/distributed.h"
 #include "renderer/view.h"
 #include "volume/input_error.h"
 
@@ -23,6 +24,14 @@ Command addViewCommand(CLI::App& app) {
   cmd->add_option("--threads", flags->options.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));
   addSceneOverrides(cmd, flags->options.overrides);
   return {cmd, [flags] {
+            // One server, one process: under mpirun every rank would start its own on the port.
+            // (A data-parallel scene is viewed whole in this process.)
+            const LaunchedRanks ranks = launchedRanks();
+            if (ranks.size > 1) {
+              if (ranks.rank != 0) return 2;  // rank 0 alone says it
+              throw InputError("view", "", "runs in one process: start it without mpirun (it was started as " +
+                                               std::to_string(ranks.size) + " ranks)");
+            }
             ViewOptions options = flags->options;
             if (!flags->resolution.empty()) {
               parseResolution(flags->resolution, options.width, options.height);

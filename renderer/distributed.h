@@ -15,6 +15,14 @@
 
 namespace iso {
 
+// The ranks an MPI launcher started, and this process's rank among them, from the launcher's
+// environment (Open MPI's OMPI_COMM_WORLD_SIZE / _RANK, or PMI_SIZE / PMI_RANK), without touching
+// MPI: {1, 0} when no launcher started this process (the commands that run in one process only).
+struct LaunchedRanks {
+  int size = 1, rank = 0;
+};
+LaunchedRanks launchedRanks();
+
 // This process's place in an MPI job, or a job of one.
 class MpiJob {
  public:

@@ -71,7 +71,22 @@ bool launchedByMpi() {
   return false;
 }
 
+int environmentInt(const char* name, int fallback) {
+  const char* v = std::getenv(name);
+  if (!v) return fallback;
+  char* end = nullptr;
+  const long n = std::strtol(v, &end, 10);
+  return end != v && *end == '\0' && n >= 0 && n <= (1 << 24) ? int(n) : fallback;
+}
+
 }  // namespace
+
+LaunchedRanks launchedRanks() {
+  LaunchedRanks r;
+  r.size = environmentInt("OMPI_COMM_WORLD_SIZE", environmentInt("PMI_SIZE", 1));
+  r.rank = environmentInt("OMPI_COMM_WORLD_RANK", environmentInt("PMI_RANK", 0));
+  return r;
+}
 
 MpiJob::MpiJob() {
   if (!launchedByMpi()) return;

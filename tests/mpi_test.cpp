@@ -435,6 +435,18 @@ TEST(Mpi, DataParallelRankLostOrBadFileEndsTheRun) {
   EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 100) << "no hang";
 }
 
+// `isotrace view` is one server in one process: under mpirun with more ranks it says so in one
+// line (rank 0's) and ends with status 2, instead of every rank starting a server on the port.
+TEST(Mpi, ViewRunsInOneProcess) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", pathScene());
+  const auto r = runCommand(mpirun(2) + ISOTRACE_BINARY + " view " + dir + "/s.json --port 0");
+  EXPECT_NE(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("isotrace: view: runs in one process: start it without mpirun (it was started as 2 ranks)"),
+            std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("isotrace:", r.err.find("isotrace:") + 1), std::string::npos) << "one line: " << r.err;
+}
+
 // SIGINT on mpirun (it forwards SIGTERM to the ranks, and kills them a second later): rank 0
 // writes the image of the samples gathered so far, every pixel sampled (pieces go out pass
 // by pass; data-parallel ranks stop together after a pass over all pixels), marked interrupted.
