@@ -85,23 +85,19 @@ class LaneRounds {
       makecontext(&lane.context, reinterpret_cast<void (*)()>(&LaneRounds::laneMain<Start, Body>), 3, l,
                   unsigned(p & 0xffffffffu), unsigned(p >> 32));
     }
-    std::vector<RankAnswer> round(kLanes);
     for (;;) {
       bool any = false;
       for (int l = 0; l < kLanes; ++l) {
         Lane& lane = m_lanes[size_t(l)];
-        if (lane.done) {
-          round[size_t(l)] = RankAnswer{};  // asks nothing
-          continue;
+        if (!lane.done) {
+          m_current = l;
+          swapcontext(&m_scheduler, &lane.context);  // runs the lane up to its next query, or to its end
         }
-        m_current = l;
-        swapcontext(&m_scheduler, &lane.context);  // runs the lane up to its next query, or to its end
-        round[size_t(l)] = lane.done ? RankAnswer{} : m_answers[size_t(l)];
+        if (lane.done) m_answers[size_t(l)] = RankAnswer{};  // asks nothing
         any = any || !lane.done;
       }
       if (!any) break;
-      m_exchange.combine(round);
-      m_answers = round;
+      m_exchange.combine(m_answers);  // in place: each lane's combined answer, read as it resumes
     }
     m_lanes.clear();
     if (m_failure) std::rethrow_exception(m_failure);

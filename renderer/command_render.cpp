@@ -578,6 +578,13 @@ int render(const RenderFlags& flags) {
   std::unique_ptr<World> world;
   int worldFrame = -1;
   double loadSeconds = 0, buildSeconds = 0;
+  // A data-parallel rank holds part of the volumes: the framing and the lights' power are the
+  // whole scene's, the union of the ranks' bounds (bit for bit the single process's). Collective.
+  auto shareSceneBounds = [&] {
+    Vec3d lower = world->lower(), upper = world->upper();
+    job.unionOfBounds(lower, upper);
+    world->setSceneBounds(setup.scene, lower, upper);
+  };
   auto buildWorld = [&](int frame) {
     // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
     if (world && setup.seq.surface < 0) return;
@@ -591,13 +598,7 @@ int render(const RenderFlags& flags) {
     worldFrame = frame;
     loadSeconds += world->loadSeconds();
     buildSeconds += world->buildSeconds();
-    if (dataParallel && !first) {
-      // As for the first World (below): the framing and the lights' power of the whole scene.
-      // Collective: every rank builds every frame's World.
-      Vec3d lower = world->lower(), upper = world->upper();
-      job.unionOfBounds(lower, upper);
-      world->setSceneBounds(setup.scene, lower, upper);
-    }
+    if (dataParallel && !first) shareSceneBounds();  // (every rank builds every frame's World)
   };
   auto firstFrame = [&] {
     for (int f = 0; f < setup.seq.frames; ++f)
@@ -629,12 +630,8 @@ int render(const RenderFlags& flags) {
       return stopRequested() ? 130 : 2;
     }
     if (setup.scene.settings.dataParallel && world) {
-      // Each rank holds part of the volumes: the framing and the lights' power are the whole
-      // scene's, the union of the ranks' bounds (bit for bit the single process's).
-      Vec3d lower = world->lower(), upper = world->upper();
-      job.unionOfBounds(lower, upper);
       try {
-        world->setSceneBounds(setup.scene, lower, upper);
+        shareSceneBounds();
       } catch (const InputError& e) {
         error = e.what();
       }

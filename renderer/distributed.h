@@ -15,10 +15,11 @@
 
 namespace iso {
 
-// The ranks an MPI launcher started, and this process's rank among them, from the launcher's
-// environment (Open MPI's OMPI_COMM_WORLD_SIZE / _RANK, or PMI_SIZE / PMI_RANK), without touching
-// MPI: {1, 0} when no launcher started this process (the commands that run in one process only).
+// Whether an MPI launcher started this process, the ranks it started and this process's rank
+// among them, from the launcher's environment (Open MPI's OMPI_COMM_WORLD_SIZE / _RANK, or
+// PMI_SIZE / PMI_RANK, PMIX_RANK), without touching MPI: {false, 1, 0} when none did.
 struct LaunchedRanks {
+  bool launched = false;
   int size = 1, rank = 0;
 };
 LaunchedRanks launchedRanks();

@@ -65,12 +65,6 @@ void sendCounters(const RayCounters& mine, RayCounters& total, int root) {
 
 namespace {
 
-bool launchedByMpi() {
-  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"})
-    if (std::getenv(name)) return true;
-  return false;
-}
-
 int environmentInt(const char* name, int fallback) {
   const char* v = std::getenv(name);
   if (!v) return fallback;
@@ -83,13 +77,14 @@ int environmentInt(const char* name, int fallback) {
 
 LaunchedRanks launchedRanks() {
   LaunchedRanks r;
+  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"}) r.launched = r.launched || std::getenv(name);
   r.size = environmentInt("OMPI_COMM_WORLD_SIZE", environmentInt("PMI_SIZE", 1));
   r.rank = environmentInt("OMPI_COMM_WORLD_RANK", environmentInt("PMI_RANK", 0));
   return r;
 }
 
 MpiJob::MpiJob() {
-  if (!launchedByMpi()) return;
+  if (!launchedRanks().launched) return;
   int provided = 0;
   MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
   m_initialised = true;

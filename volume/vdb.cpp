@@ -320,22 +320,20 @@ VolumeFile loadVdb(const std::string& path, const std::string& gridName, bool de
   // OpenVDB trusts the sizes in its streams (the fuzzer makes it ask for 2^56 bytes): it reads
   // in a child process.
   return readInChildProcess(path, "OpenVDB", [&] {
-    VolumeFile f;
     if (layout) {
       checkWindow(*window, layout->dims(), path);
-      Vec3i b0, b1;  // the bricks whose 9^3 samples reach into the window (sparseWindow keeps those)
-      for (int a = 0; a < 3; ++a) {  // 8 b + 8 >= first and 8 b <= last
-        const int first = window->first[a], last = first + window->extent[a] - 1;
-        b0[a] = first <= 8 ? 0 : (first - 8 + 7) / 8;
-        b1[a] = std::min(layout->bricks[a], last / 8 + 1);
-      }
+      // The bricks whose 9^3 samples reach into the window (those sparseWindow keeps):
+      // 8 b + 8 >= first and 8 b <= last.
       SparseLayout kept = *layout;
-      kept.keep0 = b0;
-      kept.keep1 = b1;
-      const VdbPart part{kept, layout->samplesOf(b0, b1), window};
+      for (int a = 0; a < 3; ++a) {
+        const int first = window->first[a], last = first + window->extent[a] - 1;
+        kept.keep0[a] = first <= 8 ? 0 : (first - 8 + 7) / 8;
+        kept.keep1[a] = std::min(layout->bricks[a], last / 8 + 1);
+      }
+      const VdbPart part{kept, kept.samplesOf(kept.keep0, kept.keep1), window};
       return readVdb(path, gridName, false, &part);
     }
-    f = readVdb(path, gridName, dense);
+    VolumeFile f = readVdb(path, gridName, dense);
     if (window) {
       checkWindow(*window, f.grid.dims(), path);
       f.grid = dense ? windowOf(f.grid, window->first, window->extent) : sparseWindow(f.grid, *window);
