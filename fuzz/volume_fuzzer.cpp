@@ -12,7 +12,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;
   static const char* names[] = {"v.nrrd", "v.nhdr", "v.mhd", "v.vtk", "v_8x4x2_uint8.raw", "v_4x4x4_float32.raw.gz",
                                 "v_3x3x3_int16.raw", "v.raw", "v.nii", "v.nii.gz"};
-  // DICOM and OpenVDB are left out: GDCM and OpenVDB read in a child process (volume/isolated.cpp)
+  // DICOM and OpenVDB are left out: GDCM and OpenVDB read in a child process (volume/child_process.cpp)
   // where ASan reports the libraries' own memory errors (as fuzz findings written by the child)
   // and each execution pays a fork. What isotrace does with such a child is tested in
   // tests/formats_test.cpp, and the inputs the fuzzer found are one-line errors (BENCHMARKS.md).

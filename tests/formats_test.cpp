@@ -450,7 +450,7 @@ TEST(VdbFiles, SmokeIsReadAndPlacedByItsTransform) {
   }
 }
 
-// OpenVDB reads in a forked child (volume/isolated.cpp). fork() copies TBB's scheduler and
+// OpenVDB reads in a forked child (volume/child_process.cpp). fork() copies TBB's scheduler and
 // allocator state but not its worker threads: a parallel algorithm in the child could wait for
 // ever for a worker that is not there, or for a lock a parent thread held at the fork (it did, in
 // CI: Packets.PacketWalk... hung loading smoke.vdb right after a parallel surface build). The child

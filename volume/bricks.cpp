@@ -6,7 +6,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "volume/loaders.h"
+#include "volume/child_process.h"
 
 namespace iso {
 namespace {

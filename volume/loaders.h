@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "volume/bricks.h"
+#include "volume/child_process.h"
 #include "volume/grid.h"
 #include "volume/transform.h"
 
@@ -97,26 +98,6 @@ BrickGrid vdbBrickRanges(const std::string& path, const std::string& grid = "", 
 // `toWorld` (rotation, mirroring, shear). Throws InputError (file, where) for a degenerate one.
 void placeByAffine(const double a[3][4], Grid& grid, Transform& toWorld, const std::string& file,
                    const std::string& where);
-// Runs `read` in a child process and returns its volume (volume/isolated.cpp): for libraries
-// that abort, crash or allocate without bound on malformed files (GDCM, OpenVDB, libnifti). The
-// samples (of a window too) come back through shared memory the parent maps; the child's
-// InputError comes back as is, its death as an InputError naming `library` and the file.
-VolumeFile readInChildProcess(const std::string& path, const char* library, const std::function<VolumeFile()>& read);
-// The same for anything else such a library reads (a header alone, a volume's brick ranges):
-// `work(fd)` runs in the child, returns a report and may write bytes to `fd`; the parent gets the
-// report and those bytes, mapped (null when none). Errors as above.
-struct ChildOutput {
-  std::string report;
-  std::shared_ptr<const void> bytes;
-  size_t size = 0;
-};
-ChildOutput runInChildProcess(const std::string& path, const char* library, const std::function<std::string(int fd)>& work);
-// A volume's brick ranges computed in a child process (`ranges` runs there), for such a library.
-BrickGrid rangesInChildProcess(const std::string& path, const char* library, const std::function<BrickGrid()>& ranges);
-// True in such a child. fork() copies TBB's scheduler state but not its worker threads, so a
-// parallel loop there can wait for ever for a worker that is not there (a load hung so in CI):
-// the child runs no TBB, and code it calls (BrickGrid's build) loops serially when this is true.
-bool inReaderChild();
 
 // "voxel (i, j, k) at [...] (i, j, k, 1)": an affine for `isotrace info`.
 std::string describeAffine(const double a[3][4]);

@@ -145,7 +145,7 @@ VolumeFile toSparse(const GridT& grid, const std::string& path, const SparseLayo
     return -1 - it->second;
   };
   // Not registered with the tree (a registered one goes into a TBB hash map, allocated by TBB's
-  // allocator, whose locks a forked reader may hold copies of: loaders.h, inReaderChild).
+  // allocator, whose locks a forked reader may hold copies of: child_process.h, inReaderChild).
   auto accessor = grid.getConstUnsafeAccessor();
   auto base = [&](int bx, int by, int bz) { return origin + openvdb::Coord(8 * bx, 8 * by, 8 * bz); };
   // Fills a brick's block from the tree; true if its samples are not all one value.
@@ -440,7 +440,7 @@ VolumeFile readVdb(const std::string& path, const std::string& gridName, bool de
     }
     file.close();
     // Never freed: OpenVDB frees a tree's nodes in a tbb::parallel_for, and this runs in a reader
-    // child, which must not enter TBB (loaders.h, inReaderChild); the child's _exit frees it all.
+    // child, which must not enter TBB (child_process.h, inReaderChild); the child's _exit frees it all.
     new openvdb::GridPtrVecPtr(metadata);
     new openvdb::GridBase::Ptr(grid);
     VolumeFile out;

@@ -1,4 +1,4 @@
-// Reading a volume in a child process (loaders.h, readInChildProcess). Debian builds GDCM with
+// Reading a volume in a child process (child_process.h). Debian builds GDCM with
 // its assertions on, and malformed files trip them (pydicom's own test files do); OpenVDB trusts
 // the sizes in its streams and allocates whatever they say, or reads past its buffers; libnifti
 // overflows a stack buffer on a malformed header (a fuzzer finding). An
@@ -66,7 +66,7 @@ bool g_inReaderChild = false;
 
 [[noreturn]] void childMain(int bytesFd, int reportFd, const std::string& path,
                             const std::function<std::string(int)>& work) {
-  g_inReaderChild = true;  // no TBB from here on (loaders.h, inReaderChild)
+  g_inReaderChild = true;  // no TBB from here on (child_process.h, inReaderChild)
   // The parent's handlers (SIGINT's, a fuzzer's) are not the child's business; a crash here
   // ends the child, which the parent reports. The library's own messages are muted.
   for (int sig : {SIGABRT, SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGINT, SIGTERM}) std::signal(sig, SIG_DFL);
