@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <future>
 #include <map>
 #include <optional>
 #include <regex>
@@ -19,6 +20,7 @@
 #include "renderer/commands.h"
 #include "renderer/distributed.h"
 #include "renderer/render.h"
+#include "scene/time_series.h"
 #include "volume/input_error.h"
 
 namespace iso {
@@ -27,7 +29,7 @@ namespace {
 struct RenderFlags {
   std::string scene, output, integrator, intersector, rayFlow, resolution, aov, stats, tonemap, isoSweep, denoise;
   bool denoiseGiven = false;
-  int spp = 0, threads = -1, maxDepth = 0, frames = 1;
+  int spp = 0, threads = -1, maxDepth = 0, frames = 0;  // frames 0: not given
   std::optional<double> orbit;
   long long seed = -1;
   bool quiet = false, alpha = false, allowLarge = false, colorbar = false, dataParallel = false;
@@ -237,12 +239,14 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
   writeJsonFile(path, statsJson(scene, loadSeconds, buildSeconds, r, frames, threads, totalSeconds, ranks, perRank));
 }
 
-// A frame sequence (--frames, --iso-sweep, --orbit): frame f of N has iso-surface `surface`
-// (counted over all volumes in scene order) at from + (to - from) f / (N - 1), and the camera
-// turned about its look-at point, around its up vector, by orbit f / N degrees (a full 360
-// turn does not repeat the first frame).
+// A frame sequence (--frames, --iso-sweep, --orbit, volumes that change over time): frame f of N
+// has iso-surface `surface` (counted over all volumes in scene order) at from + (to - from) f /
+// (N - 1), the camera turned about its look-at point, around its up vector, by orbit f / N
+// degrees (a full 360 turn does not repeat the first frame), and each time series at its step
+// timeStepOfFrame(f, N, its steps) (N defaults to the longest series' steps: one frame a step).
 struct FrameSequence {
   int frames = 1;
+  int steps = 1;     // the longest time series' (1: nothing changes over time)
   int surface = -1;  // swept surface, or -1
   double from = 0, to = 0;
   double orbit = 0;
@@ -265,7 +269,8 @@ struct FrameSequence {
 
 FrameSequence frameSequence(const RenderFlags& f, SceneDesc& scene) {
   FrameSequence seq;
-  seq.frames = f.frames;
+  seq.steps = sceneTimeSteps(scene);
+  seq.frames = f.frames > 0 ? f.frames : seq.steps;
   if (!f.isoSweep.empty()) {
     std::istringstream in(f.isoSweep);
     std::string index, from, to;
@@ -295,12 +300,45 @@ FrameSequence frameSequence(const RenderFlags& f, SceneDesc& scene) {
     if (!std::isfinite(*f.orbit) || std::fabs(*f.orbit) > 36000) throw InputError("--orbit", "", "expected degrees in [-36000, 36000]");
     seq.orbit = *f.orbit;
   }
-  if (seq.frames > 1 && seq.surface < 0 && !f.orbit)
-    throw InputError("--frames", "", "a sequence needs --iso-sweep and/or --orbit (else every frame is the same)");
+  if (seq.frames > 1 && seq.surface < 0 && !f.orbit && seq.steps == 1)
+    throw InputError("--frames", "", "a sequence needs --iso-sweep, --orbit or a volume that changes over time "
+                                     "(else every frame is the same)");
   if (seq.frames == 1 && (seq.surface >= 0 || f.orbit))
     throw InputError("--frames", "", "--iso-sweep and --orbit make a sequence: give --frames N (N >= 2)");
   return seq;
 }
+
+// Time steps read ahead on a second thread: start() the next frame's step of a volume, and the next
+// World take()s it (waiting for it) if it is the step that World asks for; otherwise it is read
+// there. An error in a read ahead comes out of take(), where the frame that needs it is built.
+class TimeStepsAhead {
+ public:
+  void start(size_t volume, VolumeDesc desc) {
+    Pending& p = m_pending[volume];
+    if (p.result.valid()) p.result.wait();  // (never two reads of one volume at once)
+    p.key = volumeSourceKey(desc);
+    p.result = std::async(std::launch::async, [desc = std::move(desc)] { return loadVolume(desc); });
+  }
+  VolumeFile take(size_t volume, const VolumeDesc& desc) {
+    auto it = m_pending.find(volume);
+    if (it == m_pending.end() || !it->second.result.valid() || it->second.key != volumeSourceKey(desc))
+      return loadVolume(desc);
+    VolumeFile f = it->second.result.get();
+    m_pending.erase(it);
+    return f;
+  }
+  ~TimeStepsAhead() {  // a read still under way (the sequence stopped or failed) is waited for
+    for (auto& [v, p] : m_pending)
+      if (p.result.valid()) p.result.wait();
+  }
+
+ private:
+  struct Pending {
+    std::string key;
+    std::future<VolumeFile> result;
+  };
+  std::map<size_t, Pending> m_pending;
+};
 
 // The camera turned about its look-at point, around its up vector, by `degrees`.
 CameraDesc orbitCamera(CameraDesc c, double degrees) {
@@ -461,6 +499,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       metadata["isotrace:frame"] = std::to_string(frame) + "/" + std::to_string(seq.frames);
       if (seq.surface >= 0) metadata["isotrace:iso_value"] = jsonNumber(seq.isoValue(frame));
       if (seq.orbit != 0) metadata["isotrace:orbit_degrees"] = jsonNumber(degrees);
+      if (seq.steps > 1) metadata["isotrace:time_step"] = std::to_string(timeStepOfFrame(frame, seq.frames, seq.steps));
     }
     if (imageFormatFor(output) != ImageFormat::Exr) {
       metadata["isotrace:exposure"] = jsonNumber(display.exposure);
@@ -585,20 +624,50 @@ int render(const RenderFlags& flags) {
     job.unionOfBounds(lower, upper);
     world->setSceneBounds(setup.scene, lower, upper);
   };
+  // A time series' next step is read on a second thread while a frame renders (one process, or
+  // one rank of an image-parallel job): at most the current and the next step are held.
+  TimeStepsAhead ahead;
+  std::vector<VolumeShape> firstShapes;  // each volume's at the first frame: a series' steps must agree
+  auto nextFrame = [&](int frame) {
+    for (int f = frame + 1; f < setup.seq.frames; ++f)
+      if (mine(f)) return f;
+    return -1;
+  };
   auto buildWorld = [&](int frame) {
-    // A new iso value is a new World (its bricks and BVH for that value); a camera move is not.
-    if (world && setup.seq.surface < 0) return;
-    if (setup.seq.surface >= 0) setup.seq.iso(setup.scene)->value = setup.seq.isoValue(frame);
-    // A sweep changes iso values only: the volumes stay loaded from the previous frame's World.
-    // Not so for a data-parallel rank: its part of a volume is balanced by the bricks the iso
-    // values make active, so each value has its own parts (read again).
-    const bool dataParallel = setup.scene.settings.dataParallel && job.distributed();
+    SceneDesc& scene = setup.scene;
+    const FrameSequence& seq = setup.seq;
+    // A new iso value or time step is a new World (its bricks and BVH); a camera move is not.
+    bool changed = !world || seq.surface >= 0;
+    for (VolumeDesc& v : scene.volumes) {
+      const std::string before = volumeSourceKey(v);
+      selectTimeStep(v, timeStepOfFrame(frame, seq.frames, v.time.steps));
+      changed = changed || volumeSourceKey(v) != before;
+    }
+    if (!changed) return;
+    if (seq.surface >= 0) seq.iso(scene)->value = seq.isoValue(frame);
+    // Volumes whose step has not changed stay loaded from the previous frame's World. Not so for a
+    // data-parallel rank: its part of a volume is balanced by the bricks the iso values make
+    // active, so each frame has its own parts (read again).
+    const bool dataParallel = scene.settings.dataParallel && job.distributed();
     const bool first = !world;  // (the first World's bounds are shared once every rank has loaded, below)
-    world = std::make_unique<World>(setup.scene, setup.scene.settings.intersector, dataParallel ? nullptr : world.get());
+    world = std::make_unique<World>(scene, scene.settings.intersector, dataParallel ? nullptr : world.get(),
+                                    [&](size_t v, const VolumeDesc& desc) { return ahead.take(v, desc); });
     worldFrame = frame;
     loadSeconds += world->loadSeconds();
     buildSeconds += world->buildSeconds();
+    for (size_t v = 0; v < scene.volumes.size(); ++v) {
+      const Grid& grid = *world->volumes()[v].grid;
+      if (first) firstShapes.push_back({grid.dims(), grid.type()});
+      else if (scene.volumes[v].time.varying()) checkSameShape(scene, scene.volumes[v], firstShapes[v], grid);
+    }
     if (dataParallel && !first) shareSceneBounds();  // (every rank builds every frame's World)
+    if (const int next = nextFrame(frame); next >= 0 && !dataParallel)
+      for (size_t v = 0; v < scene.volumes.size(); ++v) {
+        VolumeDesc step = scene.volumes[v];
+        if (!step.time.varying()) continue;
+        selectTimeStep(step, timeStepOfFrame(next, seq.frames, step.time.steps));
+        if (volumeSourceKey(step) != volumeSourceKey(scene.volumes[v])) ahead.start(v, std::move(step));
+      }
   };
   auto firstFrame = [&] {
     for (int f = 0; f < setup.seq.frames; ++f)
@@ -687,7 +756,8 @@ Command addRenderCommand(CLI::App& app) {
                                          "(a-trous), or off; an EXR keeps the raw image as layer \"raw\"")
                              ->expected(0, 1);
   cmd->add_option("--adaptive", f.adaptive, "stop pixels whose relative standard error is below T (e.g. 0.02)");
-  cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep and/or --orbit)")
+  cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep, --orbit, or "
+                                        "volumes that change over time: then one frame per time step unless given)")
       ->check(CLI::Range(1, 100000));
   cmd->add_option("--iso-sweep", f.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
   addSceneOverrides(cmd, f.overrides);

@@ -133,6 +133,18 @@ struct VolumeDesc {
   // "array": K, a grid handed to the parser (SceneArrays: the Python module's numpy volumes,
   // used in place); its samples, origin and spacing. Null for a file or a procedural field.
   std::shared_ptr<const Grid> array;
+  // A volume that changes over time, one volume per time step: "file" as a list of files or a
+  // pattern (* and ? in its last part, matches in natural order), "time": "all" on a file with a
+  // time axis (a 4D NIfTI), or a list of arrays from Python. `file`, `part.time` and `array` above
+  // hold the step being rendered (scene/time_series.h, selectTimeStep).
+  struct TimeSeries {
+    std::vector<std::string> files;                    // one per step (a list or a pattern's matches)
+    std::vector<std::shared_ptr<const Grid>> arrays;   // one per step (Python)
+    bool fileAxis = false;                             // "time": "all": the steps of `file`'s time axis
+    int steps = 1;                                     // (a time axis's: known once resolveTimeSeries read the header)
+    std::string where;                                 // JSON path of "file" or "time", for messages
+    bool varying() const { return !files.empty() || !arrays.empty() || fileAxis; }
+  } time;
 };
 
 struct RenderSettings {

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "scene/scene.h"
+#include "scene/time_series.h"
 #include "volume/input_error.h"
 #include "volume/input_file.h"
 
@@ -737,8 +738,8 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
     for (size_t i = 0; i < j->size(); ++i) {
       const std::string vp = "/volumes/" + std::to_string(i);
       ObjectReader vr((*j)[i], vp, path,
-                      {"file", "procedural", "array", "dims", "type", "endian", "series", "grid", "origin", "spacing",
-                       "transform", "name", "isosurfaces", "slices", "clip"});
+                      {"file", "procedural", "array", "time", "dims", "type", "endian", "series", "grid", "origin",
+                       "spacing", "transform", "name", "isosurfaces", "slices", "clip"});
       VolumeDesc v;
       v.where = vp;
       const bool hasFile = vr.has("file"), hasProc = vr.has("procedural"), hasArray = vr.has("array");
@@ -746,18 +747,68 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
         vr.fail(vp, "a volume needs exactly one of \"file\" and \"procedural\" (or, from Python, \"array\")");
       if (hasArray) {
         // An in-memory grid (isotrace.Volume in Python): its index among the arrays handed over.
+        // A list of indices: a time series, one array per step.
         const size_t count = arrays ? arrays->size() : 0;
         if (count == 0)
           vr.fail(vr.at("array"), "no arrays here: \"array\" names a volume given from Python (isotrace.Volume)");
-        const int k = vr.integer("array", 0, 0, int(std::min<size_t>(count, 1u << 30)) - 1);
-        v.array = (*arrays)[size_t(k)];
-        if (!v.array) vr.fail(vr.at("array"), "array " + std::to_string(k) + " is empty");
-        for (const char* key : {"dims", "type", "endian", "series", "grid"})
+        const Json& a = *vr.get("array");
+        const int most = int(std::min<size_t>(count, 1u << 30)) - 1;
+        auto arrayAt = [&](const Json& j, const std::string& where) {
+          if (!j.is_number_integer()) vr.fail(where, std::string("expected a whole number, found ") + typeName(j));
+          const int k = int(vr.toNumber(j, where, 0, most));
+          if (!(*arrays)[size_t(k)]) vr.fail(where, "array " + std::to_string(k) + " is empty");
+          return (*arrays)[size_t(k)];
+        };
+        if (a.is_array()) {
+          if (a.empty()) vr.fail(vr.at("array"), "an empty list of arrays");
+          for (size_t k = 0; k < a.size(); ++k) v.time.arrays.push_back(arrayAt(a[k], vr.at("array") + "/" + std::to_string(k)));
+          v.time.steps = int(v.time.arrays.size());
+          v.time.where = vr.at("array");
+          v.array = v.time.arrays[0];
+        } else {
+          v.array = arrayAt(a, vr.at("array"));
+        }
+        for (const char* key : {"dims", "type", "endian", "series", "grid", "time"})
           if (vr.has(key)) vr.fail(vr.at(key), std::string("\"") + key + "\" applies to volume files, not to an array");
       } else if (hasFile) {
-        const std::string file = vr.string("file", "");
-        if (file.empty()) vr.fail(vr.at("file"), "empty file name");
-        v.file = fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
+        // One file; a list of files or a pattern: a time series, one file per step.
+        auto resolve = [&](const std::string& file) {
+          return fs::path(file).is_absolute() ? file : (dir / file).lexically_normal().string();
+        };
+        const Json& f = *vr.get("file");
+        if (f.is_array()) {
+          if (f.empty() || f.size() > 100000) vr.fail(vr.at("file"), "expected a list of 1 to 100000 file names");
+          for (size_t k = 0; k < f.size(); ++k) {
+            const std::string kp = vr.at("file") + "/" + std::to_string(k);
+            if (!f[k].is_string()) vr.fail(kp, std::string("expected a file name, found ") + typeName(f[k]));
+            if (f[k].get<std::string>().empty()) vr.fail(kp, "empty file name");
+            v.time.files.push_back(resolve(f[k].get<std::string>()));
+          }
+        } else {
+          const std::string file = vr.string("file", "");
+          if (file.empty()) vr.fail(vr.at("file"), "empty file name");
+          if (isFilePattern(file)) v.time.files = expandFilePattern(resolve(file), path, vr.at("file"));
+          else v.file = resolve(file);
+        }
+        if (!v.time.files.empty()) {
+          v.time.steps = int(v.time.files.size());
+          v.time.where = vr.at("file");
+          v.file = v.time.files[0];
+        }
+        if (const Json* t = vr.get("time")) {
+          // A file's time axis: "all" steps through it, a whole number picks one time point.
+          if (!v.time.files.empty())
+            vr.fail(vr.at("time"), "\"time\" picks time points of one file with a time axis; a list or pattern of files is a series already");
+          if (t->is_string() && t->get<std::string>() == "all") {
+            v.time.fileAxis = true;
+            v.time.steps = 0;  // read from the header (resolveTimeSeries)
+            v.time.where = vr.at("time");
+          } else if (t->is_number_integer()) {
+            v.part.time = int(vr.toNumber(*t, vr.at("time"), 0, 1 << 30));
+          } else {
+            vr.fail(vr.at("time"), "expected \"all\" (every time point) or a whole number (one time point, from 0)");
+          }
+        }
         if (const Json* d = vr.get("dims")) {
           if (!d->is_array() || d->size() != 3) vr.fail(vr.at("dims"), "expected an array of 3 whole numbers");
           Vec3i dims;
@@ -783,7 +834,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
         if (endian != "little" && endian != "big") vr.fail(vr.at("endian"), "expected \"little\" or \"big\"");
         v.layout.bigEndian = endian == "big";
       } else {
-        for (const char* key : {"dims", "type", "endian", "series", "grid"})
+        for (const char* key : {"dims", "type", "endian", "series", "grid", "time"})
           if (vr.has(key)) vr.fail(vr.at(key), std::string("\"") + key + "\" applies to volume files, not to a procedural field");
         ObjectReader pr(*vr.get("procedural"), vr.at("procedural"), path, {"field", "resolution"});
         const std::string name = pr.string("field", "");
@@ -886,6 +937,7 @@ SceneDesc parseSceneText(const std::string& text, const std::string& path, const
   applyOverrides(root, overrides, applied);
   SceneDesc scene = parseSceneJson(root, path, arrays);
   scene.overrides = std::move(applied);
+  resolveTimeSeries(scene);  // (reads the headers of time series, checks their steps)
   return scene;
 }
 

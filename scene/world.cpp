@@ -3,6 +3,7 @@
 #include "scene/world.h"
 
 #include "scene/texture.h"
+#include "scene/time_series.h"
 
 #include <algorithm>
 #include <filesystem>
@@ -103,7 +104,8 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov) {
   return c;
 }
 
-World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
+World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes,
+             const VolumeLoader& load) {
   m_camera = scene.camera;
   m_sceneClip = scene.clip;
   Material fallback;
@@ -122,7 +124,7 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
   try {
     loadMeshes(scene);
-    buildVolumes(scene, intersector, sameVolumes);
+    buildVolumes(scene, intersector, sameVolumes, load);
     buildSlices(scene);
     buildLights(scene);
     // The GGX albedo table (~8e7 instructions, built once per process on first use) is built
@@ -525,18 +527,22 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
 }
 }  // namespace
 
-void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes) {
+void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes,
+                         const VolumeLoader& load) {
   for (size_t v = 0; v < scene.volumes.size(); ++v) {
     const VolumeDesc& desc = scene.volumes[v];
     const auto loadStart = std::chrono::steady_clock::now();
     VolumeInfo info;
-    const bool shared = sameVolumes && v < sameVolumes->m_volumes.size();
+    const std::string source = volumeSourceKey(desc);
+    const bool shared = sameVolumes && v < sameVolumes->m_volumes.size() && sameVolumes->m_volumes[v].source == source;
     if (shared) {
       info = sameVolumes->m_volumes[v];  // the grid and brick ranges are shared, not copied
     } else {
       info.name = desc.array ? "array" : desc.field ? "procedural" : desc.file;
-      VolumeFile file =
-          scene.dataPart.ranks > 1 && !desc.isosurfaces.empty() ? loadRankVolume(scene, v) : loadVolume(desc);
+      info.source = source;
+      VolumeFile file = scene.dataPart.ranks > 1 && !desc.isosurfaces.empty() ? loadRankVolume(scene, v)
+                        : load                                             ? load(v, desc)
+                                                                           : loadVolume(desc);
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;
       info.toObject = info.transform.inverse();

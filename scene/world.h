@@ -6,6 +6,7 @@
 #include <embree3/rtcore.h>
 
 #include <array>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -79,7 +80,12 @@ struct VolumeInfo {
   Transform toObject;              // its inverse: world -> the grid's object space
   std::string format;              // the file's format ("procedural" for a built-in field)
   std::vector<std::string> notes;  // what the file said about itself (VolumeFile::notes)
+  std::string source;              // what was loaded (volumeSourceKey): a later World reuses it when equal
 };
+
+// How a World gets a volume's samples: nothing (loadVolume reads it), or a function that may hand
+// over one read ahead (a time series' next step, read while a frame renders).
+using VolumeLoader = std::function<VolumeFile(size_t volume, const VolumeDesc& desc)>;
 
 struct MeshInfo {
   std::string name;            // file or built-in shape
@@ -100,9 +106,11 @@ class World {
  public:
   // Loads and builds everything the scene needs for intersector `intersector`. `sameVolumes`:
   // a World of a scene whose volumes load alike (only their iso-surfaces, materials and the
-  // rest may differ, as in `isotrace view`): its grids and brick ranges are shared instead of
-  // read and built again.
-  World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes = nullptr);
+  // rest may differ, as in `isotrace view` or an iso sweep): its grids and brick ranges are
+  // shared instead of read and built again, each volume whose source (volumeSourceKey: a time
+  // series' step) is the same. `load`: how the others are read (default loadVolume).
+  World(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes = nullptr,
+        const VolumeLoader& load = {});
   ~World();
   World(const World&) = delete;
   World& operator=(const World&) = delete;
@@ -195,7 +203,8 @@ class World {
 
   void release();
   void loadMeshes(const SceneDesc& scene);
-  void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes);
+  void buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersector, const World* sameVolumes,
+                    const VolumeLoader& load);
   void buildSlices(const SceneDesc& scene);
   // Embree triangles of `mesh`; `clipped`: hits outside the scene's clip region are ignored.
   RTCGeometry triangleGeometry(const TriangleMesh& mesh, bool clipped = false) const;

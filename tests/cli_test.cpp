@@ -608,7 +608,7 @@ TEST(Cli, FrameSequencesAreTheSingleRendersOfTheirFrames) {
   EXPECT_NEAR(half[centre], still[centre], 0.25f * still[centre] + 0.02f);
 
   for (const auto& [args, message] : std::vector<std::pair<std::string, std::string>>{
-           {"--frames 3", "--frames: a sequence needs --iso-sweep and/or --orbit"},
+           {"--frames 3", "--frames: a sequence needs --iso-sweep, --orbit or a volume that changes over time"},
            {"--orbit 90", "--iso-sweep and --orbit make a sequence: give --frames N"},
            {"--frames 2 --iso-sweep 1:0:1", "--iso-sweep: no iso-surface 1 (the scene has 1, counted from 0 over all volumes)"},
            {"--frames 2 --iso-sweep 0:0", "--iso-sweep: expected SURFACE:FROM:TO"},

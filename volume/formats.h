@@ -77,6 +77,7 @@ struct NiftiLayout {
   bool direct = true;     // the file's samples are the grid's, no conversion
   double slope = 1, inter = 0;  // applied where not direct
   size_t offset = 0;      // of the samples in the image file (in its inflated stream when gzip)
+  int timePoints = 0;     // dim[4] (0: no time axis): 3D frames one after the other from `offset`
   bool gzip = false, swap = false;
   double affine[3][4] = {};
   std::string image, where, format;
@@ -88,7 +89,9 @@ std::string packNiftiLayout(const NiftiLayout& l);
 NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path);
 // The file's samples of a type the grid does not hold (or scaled) to float32.
 ToFloat niftiToFloat(int datatype);
-VolumeFile loadNifti(const std::string& path);
+// Where time point `time` (from 0) of the file's dim[4] begins (an error beyond them), noted in `l`.
+size_t timePointOffset(NiftiLayout& l, int time, const std::string& path);
+VolumeFile loadNifti(const std::string& path, int time);
 
 // Raw (headerless) files: the layout given, or read from an Open SciVis name.
 // A raw file's dims and type: its layout's, else its Open SciVis name's; checked.
@@ -131,7 +134,7 @@ struct SampleRuns {
 // The runs of a volume file's samples, or nullopt: another format, a named pipe, or data that is
 // not in runs (ASCII, line skips, a compressed MetaImage stream of unknown skip, a header longer
 // than 1 MiB). Only the header is read.
-std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout);
+std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout, int time = 0);
 // The window's samples of `s`, read without the rest: a plain run's rows of the window by their
 // byte ranges, a compressed run inflated whole but only the window's rows kept; a run holding no
 // row of the window is not opened. Errors about the samples name `file`.

@@ -94,10 +94,24 @@ const char* volumeExtensions() {
          ".vdb, or a folder of DICOM slices";
 }
 
+std::optional<VolumeShape> volumeFileShape(const std::string& path, const RawLayout& layout, const VolumePart& part) {
+  const std::string name = lower(fs::path(path).filename().string());
+  if (isDicomPath(path) || endsWith(name, ".vdb")) return std::nullopt;
+  const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time);
+  if (!runs) return std::nullopt;
+  return VolumeShape{runs->dims, runs->type};
+}
+
+int volumeTimePoints(const std::string& path) {
+  if (!isNiftiName(lower(fs::path(path).filename().string()))) return 0;
+  return unpackNiftiLayout(runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report,
+                           path).timePoints;
+}
+
 std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout, const VolumePart& part) {
   if (isDicomPath(path)) return dicomBrickRanges(path, part.series);
   if (endsWith(lower(fs::path(path).filename().string()), ".vdb")) return vdbBrickRanges(path, part.grid);
-  const std::optional<SampleRuns> runs = sampleRunsOf(path, layout);
+  const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time);
   if (!runs) return std::nullopt;
   return runsBrickRanges(*runs);
 }
@@ -120,10 +134,12 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (!part.series.empty() && !folder && !endsWith(name, ".dcm") && !endsWith(name, ".dicom"))
     throw InputError(path, "", "\"series\" applies to DICOM only (a folder or a .dcm file)");
   if (!part.grid.empty() && !endsWith(name, ".vdb")) throw InputError(path, "", "\"grid\" applies to .vdb files only");
+  if (part.time != 0 && !isNiftiName(name))
+    throw InputError(path, "", "has no time axis (time point " + std::to_string(part.time) + " asked for; a 4D NIfTI has one)");
   if (window && (folder || isDicomPath(path))) return loadDicom(path, part.series, window);
   if (window && endsWith(name, ".vdb")) return loadVdb(path, part.grid, false, window);
   if (window) {
-    if (const std::optional<SampleRuns> runs = sampleRunsOf(path, layout)) {
+    if (const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time)) {
       checkWindow(*window, runs->dims, path);
       VolumeFile f;
       f.grid = readRunsWindow(*runs, *window, path);
@@ -150,7 +166,7 @@ VolumeFile readVolumeFile(const std::string& path, const RawLayout& layout, cons
   if (endsWith(name, ".vtk")) return wrap(loadVtk(path), "VTK");
   if (isNiftiName(name))
     // libnifti overflows a stack buffer on some malformed headers: it reads in a child process.
-    return readInChildProcess(path, "libnifti", [&] { return loadNifti(path); });
+    return readInChildProcess(path, "libnifti", [&] { return loadNifti(path, part.time); });
   if (isRawName(name)) return wrap(loadRaw(path, layout), "raw");
   if (endsWith(name, ".dcm") || endsWith(name, ".dicom")) return loadDicom(path, part.series);
   if (endsWith(name, ".vdb")) return loadVdb(path, part.grid);

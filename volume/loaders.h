@@ -41,6 +41,7 @@ struct VolumeFile {
 struct VolumePart {
   std::string series;  // SeriesInstanceUID
   std::string grid;    // VDB grid name
+  int time = 0;        // the time point of a file with a time axis (a 4D NIfTI's dim[4]), from 0
 };
 // The samples a reader keeps of a volume split over ranks (Grid's window constructor):
 // [first, first + extent) on each axis, at least 2 samples on each.
@@ -69,6 +70,16 @@ std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayou
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;
 }
+// A volume file's dims and sample type from its header alone, for files whose samples lie in runs
+// (raw, NRRD but ASCII, MetaImage, binary VTK, NIfTI); nullopt for others (DICOM, OpenVDB, ...).
+struct VolumeShape {
+  Vec3i dims;
+  ScalarType type = ScalarType::UInt8;
+};
+std::optional<VolumeShape> volumeFileShape(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
+// The time points of a volume file: a NIfTI's dim[4] (its header read in a child process; 0 when
+// it has no time axis), 0 for any other file. Errors as readVolumeFile's.
+int volumeTimePoints(const std::string& path);
 // The extensions readVolumeFile knows, for messages.
 const char* volumeExtensions();
 

@@ -82,7 +82,10 @@ NiftiLayout readNiftiLayout(const std::string& path) {
     if (n < 1 || n > (1 << 20)) throw InputError(path, "dim", "each of the first three sizes must be 1 to 2^20");
   out.dims = Vec3i{int(nim->nx), int(nim->ny), int(nim->nz)};
   checkDims(out.dims, path, "dim");
-  if (frames > 1) out.notes.push_back("frame 0 of " + std::to_string(frames) + " (a volume is one 3D frame)");
+  // dim[4] is time; dims 5 to 7 (vector components, statistics) are not stepped through: frame 0.
+  out.timePoints = nim->dim[0] >= 4 ? int(std::min<int64_t>(nim->dim[4], INT32_MAX)) : 0;
+  if (frames > std::max(out.timePoints, 1))
+    out.notes.push_back("the first of " + std::to_string(frames / out.timePoints) + " frames per time point (dims 5 to 7)");
 
   out.datatype = nim->datatype;
   switch (nim->datatype) {
@@ -146,7 +149,7 @@ std::string packNiftiLayout(const NiftiLayout& l) {
   std::string s;
   auto put = [&](const auto& v) { s.append(reinterpret_cast<const char*>(&v), sizeof v); };
   put(l.dims), put(l.datatype), put(l.sampleSize), put(l.native), put(l.direct), put(l.slope), put(l.inter);
-  put(l.offset), put(l.gzip), put(l.swap), put(l.affine);
+  put(l.offset), put(l.timePoints), put(l.gzip), put(l.swap), put(l.affine);
   for (const std::string* text : {&l.image, &l.where, &l.format}) {
     if (text->find('\n') != std::string::npos) throw InputError(l.image, "", "a file name with a line break");
     s += *text + '\n';
@@ -164,7 +167,7 @@ NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path) {
     at += sizeof v;
   };
   get(l.dims), get(l.datatype), get(l.sampleSize), get(l.native), get(l.direct), get(l.slope), get(l.inter);
-  get(l.offset), get(l.gzip), get(l.swap), get(l.affine);
+  get(l.offset), get(l.timePoints), get(l.gzip), get(l.swap), get(l.affine);
   std::istringstream lines(s.substr(at));
   std::getline(lines, l.image);
   std::getline(lines, l.where);
@@ -173,11 +176,25 @@ NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path) {
   return l;
 }
 
+// Where time point `time` begins: frames follow each other from the header's offset. A time point
+// past the file's is an error naming dim[4]; one time point of several is noted.
+size_t timePointOffset(NiftiLayout& l, int time, const std::string& path) {
+  if (time < 0 || time >= std::max(l.timePoints, 1))
+    throw InputError(path, "dim[4]", "time point " + std::to_string(time) + " is past the file's " +
+                                         std::to_string(std::max(l.timePoints, 1)) + " (counted from 0)");
+  if (l.timePoints > 1) l.notes.push_back("time point " + std::to_string(time) + " of " + std::to_string(l.timePoints));
+  const unsigned __int128 frame = (unsigned __int128)(uint64_t(l.dims.x) * uint64_t(l.dims.y) * uint64_t(l.dims.z)) * l.sampleSize;
+  const unsigned __int128 offset = l.offset + frame * unsigned(time);
+  if (offset > (unsigned __int128)(SIZE_MAX / 2)) throw InputError(path, "dim[4]", "time point " + std::to_string(time) + " lies beyond any file size");
+  return size_t(offset);
+}
+
 // The volume of a NIfTI layout: the samples read here like raw ones, straight into the grid for
 // the types the grid holds, through one float32 conversion for the others or where scl_slope
 // scales them.
-VolumeFile loadNifti(const std::string& path) {
-  const NiftiLayout l = readNiftiLayout(path);
+VolumeFile loadNifti(const std::string& path, int time) {
+  NiftiLayout l = readNiftiLayout(path);
+  l.offset = timePointOffset(l, time, path);
   VolumeFile out;
   out.format = l.format;
   out.notes = l.notes;

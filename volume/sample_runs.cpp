@@ -183,15 +183,16 @@ Bytes readHead(const std::string& path, size_t limit, bool& whole) {
 // The runs of a volume file's samples, or nullopt: another format, a named pipe, or data that is
 // not in runs (ASCII, line skips, a compressed MetaImage stream of unknown skip, a header longer
 // than 1 MiB). Only the header is read.
-std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout) {
+std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout& layout, int time) {
   const std::string name = lower(fs::path(path).filename().string());
   const bool nrrd = endsWith(name, ".nrrd") || endsWith(name, ".nhdr"), meta = endsWith(name, ".mhd") || endsWith(name, ".mha");
   const bool vtk = endsWith(name, ".vtk"), nifti = isNiftiName(name);
   if ((!isRawName(name) && !nrrd && !meta && !vtk && !nifti) || checkInputFile(path, "file").stream) return std::nullopt;
   SampleRuns s;
   if (nifti) {
-    const NiftiLayout l = unpackNiftiLayout(
+    NiftiLayout l = unpackNiftiLayout(
         runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report, path);
+    l.offset = timePointOffset(l, time, path);
     s.dims = l.dims, s.type = l.native, s.sampleSize = l.sampleSize, s.bigEndian = l.swap;
     if (!l.direct) s.convert = niftiToFloat(l.datatype), s.slope = l.slope, s.inter = l.inter;
     s.format = l.format;
