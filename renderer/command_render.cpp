@@ -20,6 +20,7 @@
 #include "renderer/commands.h"
 #include "renderer/distributed.h"
 #include "renderer/render.h"
+#include "renderer/video.h"
 #include "scene/time_series.h"
 #include "volume/input_error.h"
 
@@ -32,7 +33,8 @@ struct RenderFlags {
   int spp = 0, threads = -1, maxDepth = 0, frames = 0;  // frames 0: not given
   std::optional<double> orbit;
   long long seed = -1;
-  bool quiet = false, alpha = false, allowLarge = false, colorbar = false, dataParallel = false;
+  bool quiet = false, alpha = false, allowLarge = false, colorbar = false, dataParallel = false, keepFrames = false;
+  std::optional<double> fps;
   std::optional<double> exposure, clamp, adaptive;
   SceneOverrides overrides;
 };
@@ -46,19 +48,21 @@ std::string fixed2(double v) {
 // --exposure and --tonemap, checked; a warning when the output is EXR (which stays linear).
 DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
   DisplaySettings d;
+  const ImageFormat format = isVideoName(output) ? ImageFormat::Png : imageFormatFor(output);  // (a video's frames show as PNG)
   if (f.exposure) {
     if (!(*f.exposure >= -30 && *f.exposure <= 30)) throw InputError("--exposure", "", "expected EV in [-30, 30]");
     d.exposure = *f.exposure;
   }
   if (!f.tonemap.empty() && !parseTonemap(f.tonemap, d.tonemap))
     throw InputError("--tonemap", "", "unknown curve '" + f.tonemap + "' (known: clamp, aces, filmic)");
-  if (imageFormatFor(output) == ImageFormat::Exr && (f.exposure || !f.tonemap.empty()))
+  if (format == ImageFormat::Exr && (f.exposure || !f.tonemap.empty()))
     std::fprintf(stderr, "isotrace: warning: --exposure and --tonemap shape PNG and JPEG output; %s stays linear\n",
                  output.c_str());
-  if (f.alpha && imageFormatFor(output) == ImageFormat::Jpeg)
+  if (f.alpha && isVideoName(output)) throw InputError("--alpha", "", "a video has no alpha channel: write .png or .exr images");
+  if (f.alpha && format == ImageFormat::Jpeg)
     throw InputError("--alpha", "", "JPEG has no alpha channel: write .png or .exr");
   if (f.colorbar) {
-    if (imageFormatFor(output) == ImageFormat::Exr)
+    if (format == ImageFormat::Exr)
       std::fprintf(stderr, "isotrace: warning: --colorbar draws under PNG and JPEG images; %s stays data\n", output.c_str());
     d.font = legendFont();
     if (d.font.empty())
@@ -146,7 +150,7 @@ std::vector<std::string> parseAovs(const std::string& list, const std::string& o
     if (std::find(aovs.begin(), aovs.end(), name) == aovs.end()) aovs.push_back(name);
     start = comma + 1;
   }
-  if (imageFormatFor(output) != ImageFormat::Exr)
+  if (isVideoName(output) || imageFormatFor(output) != ImageFormat::Exr)
     throw InputError("--aov", "", "extra layers need an EXR output (-o NAME.exr), not " + output);
   return aovs;
 }
@@ -354,6 +358,9 @@ struct RenderSetup {
   SceneDesc scene;
   FrameSequence seq;
   std::string output;
+  bool video = false;       // output is a video (.mp4, .webm): frames go to ffmpeg
+  std::string frameImages;  // a video's numbered PNG frames too (--keep-frames): their base name; else empty
+  double fps = 24;
   DisplaySettings display;
   RenderOptions options;
 };
@@ -381,14 +388,27 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   r.options.aovs = parseAovs(flags.aov, r.output);
   r.options.alpha = flags.alpha;
   r.options.progress = !flags.quiet && isatty(2);
-  for (int f : {0, r.seq.frames - 1}) {  // the first and last names: the same folder, other digits
-    const std::string name = r.seq.name(r.output, f);
+  r.video = isVideoName(r.output);
+  if (flags.fps && !r.video) throw InputError("--fps", "", "sets a video's frame rate: give -o NAME.mp4 or NAME.webm");
+  if (flags.keepFrames && !r.video)
+    throw InputError("--keep-frames", "", "keeps a video's frames as images: give -o NAME.mp4 or NAME.webm");
+  if (flags.fps) {
+    if (!(*flags.fps >= 1 && *flags.fps <= 240)) throw InputError("--fps", "", "expected frames per second in [1, 240]");
+    r.fps = *flags.fps;
+  }
+  if (r.video) findFfmpeg("-o");  // before any work
+  if (flags.keepFrames) r.frameImages = std::filesystem::path(r.output).replace_extension(".png").string();
+  auto checkNames = [&](const std::string& name) {
     if (s.integrator == "compare") {
       for (const char* part : {"direct", "global", "indirect"}) checkWritable(withSuffix(name, part));
     } else {
       checkWritable(name);
     }
-  }
+  };
+  if (r.video) checkNames(r.output);
+  if (!r.video || flags.keepFrames)
+    for (int f : {0, r.seq.frames - 1})  // the first and last names: the same folder, other digits
+      checkNames(r.seq.name(r.video ? r.frameImages : r.output, f));
   if (!flags.stats.empty()) checkWritable(flags.stats);
   if (s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator)) {
     // The sums, the denoiser's input and its working planes are all held at once: said before
@@ -417,6 +437,9 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
   const FrameSequence& seq = setup.seq;
   const RenderSettings& s = scene.settings;
   const std::string& output = setup.output;
+  const bool exrOutput = !setup.video && imageFormatFor(output) == ImageFormat::Exr;
+  // A video per image a frame makes (compare: direct, global, indirect), started at the first frame.
+  std::map<std::string, std::unique_ptr<VideoWriter>> videos;
   DisplaySettings display = setup.display;
   RenderOptions options = setup.options;
   options.progress = options.progress && job.rank() == 0;
@@ -449,6 +472,9 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       std::fprintf(stderr, "isotrace: rendering %dx%d, %d spp, %s%s\n", s.width, s.height, s.spp, s.integrator.c_str(), which.c_str());
       std::fflush(stderr);
     }
+    options.sequenceFrame = frame;
+    options.sequenceFrames = seq.frames;
+    options.sequenceStart = start;
     DenoiseInput denoiseInput;
     const bool denoising = s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator);
     options.denoiseInput = denoising ? &denoiseInput : nullptr;
@@ -466,7 +492,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     Film indirect(0, 0);
     if (denoising) {
       const DenoiseReport report = denoiseFrame(denoiseInput, s.denoise, s.threads,
-                                                imageFormatFor(output) == ImageFormat::Exr, film, direct.get(),
+                                                exrOutput, film, direct.get(),
                                                 &indirect, result);
       if (report.nonFinitePixels > 0 && !flags.quiet)
         std::fprintf(stderr, "isotrace: warning: %llu pixels had samples that are not finite (NaN or infinity); "
@@ -501,28 +527,40 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       if (seq.orbit != 0) metadata["isotrace:orbit_degrees"] = jsonNumber(degrees);
       if (seq.steps > 1) metadata["isotrace:time_step"] = std::to_string(timeStepOfFrame(frame, seq.frames, seq.steps));
     }
-    if (imageFormatFor(output) != ImageFormat::Exr) {
+    if (!exrOutput) {
       metadata["isotrace:exposure"] = jsonNumber(display.exposure);
       metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
     }
-    const std::string frameOutput = seq.name(output, frame);
+    const std::string frameOutput = setup.video ? seq.name(setup.frameImages, frame) : seq.name(output, frame);
     std::vector<std::string> written;
+    // One image of the frame (`part`: "" or compare's direct, global, indirect): a numbered
+    // image, or the next frame of its video (and a numbered PNG with --keep-frames).
+    auto emit = [&](const std::string& part, const Film& image, bool signedData) {
+      if (setup.video) {
+        std::unique_ptr<VideoWriter>& v = videos[part];
+        const std::vector<uint8_t> rgb = displayFrame(image, signedData, display);
+        if (!v) v = std::make_unique<VideoWriter>(part.empty() ? output : withSuffix(output, part), image.width(),
+                                                  int(rgb.size() / (size_t(image.width()) * 3)), setup.fps);
+        v->add(rgb);
+        if (setup.frameImages.empty()) return;
+      }
+      const std::string name = part.empty() ? frameOutput : withSuffix(frameOutput, part);
+      writeImage(name, image, signedData, metadata, display);
+      written.push_back(name);
+    };
     if (direct) {
       // global = everything, direct = paths of depth 1, indirect = global - direct (denoised:
       // direct and indirect apart, global their sum).
       if (!result.denoised) indirect = indirectOf(film, *direct);
-      const std::string global = withSuffix(frameOutput, "global");
       direct->alpha() = indirect.alpha() = film.alpha();
-      writeImage(withSuffix(frameOutput, "direct"), *direct, false, metadata, display);
-      writeImage(global, film, false, metadata, display);
-      writeImage(withSuffix(frameOutput, "indirect"), indirect, false, metadata, display);
-      written = {withSuffix(frameOutput, "direct"), global, withSuffix(frameOutput, "indirect")};
+      emit("direct", *direct, false);
+      emit("global", film, false);
+      emit("indirect", indirect, false);
       const double ld = direct->meanLuminance(), lg = film.meanLuminance(), li = indirect.meanLuminance();
       std::fprintf(stderr, "isotrace: compare: mean luminance direct %.6g, global %.6g, indirect %.6g; "
                    "%.1f%% of the light is indirect\n", ld, lg, li, lg > 0 ? 100 * li / lg : 0.0);
     } else {
-      writeImage(frameOutput, film, integrator->signedOutput(), metadata, display);
-      written = {frameOutput};
+      emit("", film, integrator->signedOutput());
     }
     for (const std::string& path : written) std::printf("%s\n", path.c_str());
     std::fflush(stdout);
@@ -537,6 +575,13 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     ++framesDone;
     if (result.interrupted) break;
   }
+  // The videos end with the frames done (an interrupted sequence's too).
+  for (const char* part : {"", "direct", "global", "indirect"})
+    if (auto it = videos.find(part); it != videos.end()) {
+      it->second->finish();
+      std::printf("%s\n", (*part ? withSuffix(output, part) : output).c_str());
+      std::fflush(stdout);
+    }
   if (byTiles && job.rank() != 0) return 0;  // (every frame done: rank 0 reports)
   if (framesDone > 0) total.meanSamples /= framesDone;
   if (job.distributed() && !byTiles) {
@@ -682,7 +727,8 @@ int render(const RenderFlags& flags) {
     std::string error;
     try {
       setup = prepareRender(flags);
-      byTiles = setup.seq.frames == 1 || setup.scene.settings.dataParallel;
+      // (A video is written by rank 0 in order: each of its frames over all ranks, by tiles.)
+      byTiles = setup.seq.frames == 1 || setup.scene.settings.dataParallel || setup.video;
       if (setup.scene.settings.dataParallel) setup.scene.dataPart = DataPart{job.rank(), job.size()};
       if (const int f = firstFrame(); f >= 0) buildWorld(f);
       if (stopRequested()) error = "interrupted while loading: no image written";
@@ -729,7 +775,8 @@ Command addRenderCommand(CLI::App& app) {
   RenderFlags& f = *flags;
   CLI::App* cmd = app.add_subcommand("render", "render a scene to an EXR or PNG image");
   cmd->add_option("scene", f.scene, "scene file (JSON)")->required();
-  cmd->add_option("-o,--output", f.output, "output image, .exr (linear), .png or .jpg (sRGB); default <scene>.png");
+  cmd->add_option("-o,--output", f.output, "output image, .exr (linear), .png or .jpg (sRGB), or a sequence's video, .mp4 "
+                                           "(H.264) or .webm (VP9), through the ffmpeg program; default <scene>.png");
   cmd->add_option("--spp", f.spp, "samples per pixel")->check(CLI::Range(1, 1 << 20));
   cmd->add_option("--integrator", f.integrator, std::string("integrator: ") + integratorList());
   cmd->add_option("--max-depth", f.maxDepth, "longest path for direct/path/compare (1: direct light only)")
@@ -759,6 +806,8 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_option("--frames", f.frames, "render a sequence of N frames, OUT.0000.png ... (with --iso-sweep, --orbit, or "
                                         "volumes that change over time: then one frame per time step unless given)")
       ->check(CLI::Range(1, 100000));
+  cmd->add_option("--fps", f.fps, "a video's frames per second (default 24)");
+  cmd->add_flag("--keep-frames", f.keepFrames, "with a video output: also write its frames as numbered PNG images (NAME.0000.png ...)");
   cmd->add_option("--iso-sweep", f.isoSweep, "SURFACE:FROM:TO: sweep iso-surface SURFACE (from 0, over all volumes) from FROM to TO over the frames");
   addSceneOverrides(cmd, f.overrides);
   cmd->add_option("--orbit", f.orbit, "turn the camera about its look-at point by DEGREES over the frames (360: a turntable)");

@@ -156,6 +156,15 @@ std::vector<uint8_t> legendStrip(const DisplaySettings& display, int w, int chan
 
 }  // namespace
 
+std::vector<uint8_t> displayFrame(const Film& film, bool signedData, const DisplaySettings& display) {
+  std::vector<uint8_t> bytes = displayRgb(film, signedData, display);
+  if (!display.legends.empty()) {
+    const std::vector<uint8_t> strip = legendStrip(display, film.width(), 3);
+    bytes.insert(bytes.end(), strip.begin(), strip.end());
+  }
+  return bytes;
+}
+
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata, const DisplaySettings& display) {
   const ImageFormat format = imageFormatFor(path);

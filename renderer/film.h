@@ -87,6 +87,10 @@ Film indirectOf(const Film& global, const Film& direct);
 // The main layer as 8-bit sRGB, 3 bytes per pixel, row by row: what PNG and JPEG show.
 std::vector<uint8_t> displayRgb(const Film& film, bool signedData, const DisplaySettings& display = {});
 
+// What a video frame shows: displayRgb's image with the legends' strip below it (as PNG), 3 bytes
+// per pixel, width film.width().
+std::vector<uint8_t> displayFrame(const Film& film, bool signedData, const DisplaySettings& display);
+
 // EXR: linear float as rendered, with every extra layer, and an "A" channel when the film has
 // coverage (premultiplied, OpenEXR's convention). PNG and JPEG: 8-bit sRGB of the main layer
 // after `display`; signed data (normals) is mapped from [-1, 1] to [0, 1] instead; PNG gets an

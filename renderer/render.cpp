@@ -173,16 +173,21 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   double lastPrint = -1;  // the bar shows at the first tile, then every quarter of a second
   bool printed = false;
   auto progress = [&](bool final) {
-    const double elapsed = seconds(start);
-    if (!final && lastPrint >= 0 && elapsed - lastPrint < 0.25) return;
-    lastPrint = elapsed;
-    const double fraction = std::min(1.0, done.load() / totalWork);
-    char e[32], eta[32];
+    const bool sequence = options.sequenceFrames > 1;
+    const double now = seconds(start);
+    if (!final && lastPrint >= 0 && now - lastPrint < 0.25) return;
+    lastPrint = now;
+    const double frameFraction = std::min(1.0, done.load() / totalWork);
+    // A sequence's bar: its frames done and this one's share, over all its frames.
+    const double fraction = sequence ? (options.sequenceFrame + frameFraction) / options.sequenceFrames : frameFraction;
+    const double elapsed = sequence ? seconds(options.sequenceStart) : now;
+    char e[32], eta[32], which[48] = "";
     formatDuration(elapsed, e, sizeof e);
     formatDuration(fraction > 0 ? elapsed * (1 - fraction) / fraction : 0, eta, sizeof eta);
+    if (sequence) std::snprintf(which, sizeof which, "  frame %d/%d", options.sequenceFrame + 1, options.sequenceFrames);
     const int bar = int(fraction * 30);
-    std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%  elapsed %s  ETA %s ", bar, "==============================",
-                 30 - bar, "", fraction * 100, e, fraction > 0 ? eta : "?");
+    std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%%s  elapsed %s  ETA %s ", bar, "==============================",
+                 30 - bar, "", fraction * 100, which, e, fraction > 0 ? eta : "?");
     std::fflush(stderr);
     printed = true;
   };

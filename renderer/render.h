@@ -6,6 +6,7 @@
 // next tile boundary once the first pass is done; the image then averages the samples each
 // pixel has (at least one).
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <csignal>
 #include <string>
@@ -26,6 +27,10 @@ struct RenderOptions {
   uint64_t seed = 0;
   int threads = 0;  // 0: all cores
   bool progress = false;  // a progress bar on stderr
+  // In a sequence of frames: this frame's place and when the sequence began. The bar then shows
+  // the whole sequence's share done, the frame, and the sequence's ETA.
+  int sequenceFrame = 0, sequenceFrames = 1;
+  std::chrono::steady_clock::time_point sequenceStart{};
   // If set, renderFrame adds the pixel samples it has done to it as it goes (out of width x
   // height x spp; pixels that adaptive sampling stops count as done): the Python module's
   // progress callback reads it from another thread.

@@ -10,7 +10,8 @@
 # `isotrace view`, whose page the tests drive in Debian's chromium with chromium-driver and
 # python3-selenium (no browser is downloaded); stress-ng loads the machine for
 # scripts/soak_tests.sh --loaded; fonts-dejavu-core is the font of `render --colorbar`'s legend;
-# GNU time (/usr/bin/time) measures peak memory in bench/data_parallel_memory.sh.
+# GNU time (/usr/bin/time) measures peak memory in bench/data_parallel_memory.sh; ffmpeg (the
+# program) encodes `render -o NAME.mp4 / .webm` videos.
 # The Python module (python/) builds with pybind11-dev against python3-dev and python3-numpy;
 # its tests run under python3-pytest, and its notebook under python3-nbconvert and
 # python3-ipykernel. After the build, a .pth file in Debian's python3 site folder
@@ -27,7 +28,7 @@ packages=(build-essential cmake pkg-config
           libopenvdb-dev libboost-iostreams-dev
           libnifti2-dev python3-nibabel libtinyobjloader-dev libgdcm-dev python3-pydicom
           libopenmpi-dev openmpi-bin libcpp-httplib-dev chromium chromium-driver python3-selenium
-          stress-ng fonts-dejavu-core time
+          stress-ng fonts-dejavu-core time ffmpeg
           pybind11-dev python3-dev python3-numpy python3-pytest python3-nbconvert python3-ipykernel)
 
 missing=()

@@ -216,6 +216,15 @@ TEST_F(SyntheticFiles, RawStraightIntoTheGrid) {
   expectInputError(dir + "/huge_2147483647x2147483647x2147483647_float32.raw", "are too large");
   test::writeBytes(dir + "/large_65536x65536x65536_uint8.raw", le);
   expectInputError(dir + "/large_65536x65536x65536_uint8.raw", "data has 48 bytes but 65536x65536x65536 uint8 needs");
+  // Plain samples that begin with gzip's magic bytes (1f 8b: a float32 of about -7.45, met in a
+  // test's ball of radius 9) are read as samples when the file is exactly their size.
+  std::vector<float> floats(8, 1.5f);
+  const uint32_t bits = 0xC0EE8B1Fu;  // little-endian bytes 1f 8b ee c0
+  std::memcpy(&floats[0], &bits, 4);
+  test::writeBytes(dir + "/m_2x2x2_float32.raw", std::string(reinterpret_cast<const char*>(floats.data()), 32));
+  const Grid magic = loadVolumeFile(dir + "/m_2x2x2_float32.raw", {});
+  EXPECT_EQ(magic.value(size_t(0)), floats[0]);
+  EXPECT_EQ(magic.value(size_t(7)), 1.5f);
 }
 
 // Hostile headers (issue 14): sizes, counts, skips and file ranges are checked before they

@@ -181,3 +181,97 @@ TEST(TimeSeries, BadSeriesAreRefusedBeforeAnyFrame) {
 
 }  // namespace
 }  // namespace iso
+
+namespace iso {
+namespace {
+
+std::string readFileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// Mean absolute difference of two RGB8 images of `pixels` pixels (a at its own row stride).
+double meanDifference(const std::string& a, const std::string& b) {
+  double sum = 0;
+  const size_t n = std::min(a.size(), b.size());
+  for (size_t i = 0; i < n; ++i) sum += std::abs(int(uint8_t(a[i])) - int(uint8_t(b[i])));
+  return n ? sum / double(n) : 1e9;
+}
+
+// A video holds every frame of the sequence, in order, as the PNG frames show them (within the
+// codec's loss); --keep-frames writes those PNGs too, the same bits as a render to PNG.
+TEST(Video, HoldsTheSequencesFramesInOrder) {
+  const std::string dir = test::scratchDir();
+  for (int k = 0; k < 3; ++k) writeBall(dir + "/ball" + std::to_string(k) + ".raw", 20, 3 + 3 * k);
+  test::writeText(dir + "/series.json", ballScene("[" + q(dir + "/ball0.raw") + ", " + q(dir + "/ball1.raw") + ", " +
+                                                  q(dir + "/ball2.raw") + "]"));
+  const auto png = runIsotrace("render " + dir + "/series.json -o " + dir + "/p.png --quiet");
+  ASSERT_EQ(png.status, 0) << png.err;
+  const auto video = runIsotrace("render " + dir + "/series.json -o " + dir + "/v.mp4 --keep-frames --fps 10 --quiet");
+  ASSERT_EQ(video.status, 0) << video.err;
+  EXPECT_EQ(video.out, dir + "/v.0000.png\n" + dir + "/v.0001.png\n" + dir + "/v.0002.png\n" + dir + "/v.mp4\n");
+  for (int f = 0; f < 3; ++f)
+    EXPECT_EQ(readFileBytes(dir + "/v.000" + std::to_string(f) + ".png").size() > 0 &&
+                  test::readExr(dir + "/v.000" + std::to_string(f) + ".png") == test::readExr(dir + "/p.000" + std::to_string(f) + ".png"),
+              true) << f;
+  const auto probe = test::runCommand("ffprobe -v error -count_frames -show_entries stream=codec_name,width,height,nb_read_frames,r_frame_rate -of compact " + dir + "/v.mp4");
+  EXPECT_EQ(probe.out, "stream|codec_name=h264|width=32|height=24|r_frame_rate=10/1|nb_read_frames=3\n") << probe.err;
+  // Decoded, frame f is nearest the PNG of frame f.
+  ASSERT_EQ(test::runCommand("ffmpeg -v error -i " + dir + "/v.mp4 -f rawvideo -pix_fmt rgb24 " + dir + "/v.rgb").status, 0);
+  const std::string decoded = readFileBytes(dir + "/v.rgb");
+  const size_t frameBytes = 32 * 24 * 3;
+  ASSERT_EQ(decoded.size(), 3 * frameBytes);
+  for (int f = 0; f < 3; ++f) {
+    const std::vector<float> p = test::readExr(dir + "/p.000" + std::to_string(f) + ".png");
+    std::string bytes;
+    for (float v : p) bytes.push_back(char(std::lround(v * 255)));
+    const double same = meanDifference(decoded.substr(size_t(f) * frameBytes, frameBytes), bytes);
+    EXPECT_LT(same, 6) << "frame " << f;
+    for (int g = 0; g < 3; ++g) {
+      if (g == f) continue;
+      std::string other;
+      for (float v : test::readExr(dir + "/p.000" + std::to_string(g) + ".png")) other.push_back(char(std::lround(v * 255)));
+      EXPECT_LT(same, meanDifference(decoded.substr(size_t(f) * frameBytes, frameBytes), other)) << f << " vs " << g;
+    }
+  }
+  // WebM: VP9, every frame.
+  const auto webm = runIsotrace("render " + dir + "/series.json -o " + dir + "/v.webm --quiet");
+  ASSERT_EQ(webm.status, 0) << webm.err;
+  EXPECT_EQ(test::runCommand("ffprobe -v error -count_frames -show_entries stream=codec_name,nb_read_frames -of compact " + dir + "/v.webm").out,
+            "stream|codec_name=vp9|nb_read_frames=3\n");
+}
+
+// Bad video requests: one line, status 2, and no video (nor a temporary file) left behind.
+TEST(Video, BadRequestsLeaveNoFile) {
+  const std::string dir = test::scratchDir() + "/out";
+  fs::create_directories(dir);
+  writeBall(dir + "/../a.raw", 20, 5);
+  writeBall(dir + "/../b.raw", 20, 7);
+  const std::string scene = dir + "/../s.json";
+  test::writeText(scene, ballScene("[" + q(dir + "/../a.raw") + ", " + q(dir + "/../b.raw") + "]"));
+  for (const auto& [args, message] : std::vector<std::pair<std::string, std::string>>{
+           {"-o " + dir + "/v.mp4 --fps 0", "--fps: expected frames per second in [1, 240]"},
+           {"-o " + dir + "/v.png --fps 30", "--fps: sets a video's frame rate"},
+           {"-o " + dir + "/v.png --keep-frames", "--keep-frames: keeps a video's frames as images"},
+           {"-o " + dir + "/v.mp4 --alpha", "--alpha: a video has no alpha channel"},
+           {"-o " + dir + "/v.mp4 --aov albedo", "--aov: extra layers need an EXR output"},
+           {"-o " + dir + "/missing/v.mp4", "output directory does not exist"}}) {
+    const auto r = runIsotrace("render " + scene + " " + args);
+    EXPECT_EQ(r.status, 2) << args << ": " << r.err;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+  // No ffmpeg, or one that fails: said in one line, nothing left in the folder.
+  for (const auto& [ffmpeg, message] : std::vector<std::pair<std::string, std::string>>{
+           {"/nonexistent/ffmpeg", "ISOTRACE_FFMPEG: '/nonexistent/ffmpeg' is not an executable program"},
+           {"/bin/false", dir + "/v.mp4: ffmpeg"}}) {
+    const auto r = test::runCommand("ISOTRACE_FFMPEG=" + ffmpeg + " " ISOTRACE_BINARY " render " + scene + " -o " + dir + "/v.mp4 --quiet");
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_NE(r.err.find(message), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+  EXPECT_TRUE(fs::is_empty(dir)) << "a file was left in " << dir;
+}
+
+}  // namespace
+}  // namespace iso

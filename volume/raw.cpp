@@ -18,15 +18,22 @@ void rawLayoutOf(const std::string& path, const RawLayout& layout, Vec3i& dims, 
   checkDims(dims, path, "");
 }
 
-// Opens a raw file of `dims` samples of `type`: whether it is gzip (its first two bytes), and
-// checked against that size (a plain file exactly, a gzip one for a plausible ratio).
+// Whether a raw file is gzip: its first two bytes (1f 8b), unless the file is exactly the samples'
+// size and not named .gz: plain samples may begin with those bytes (a float32 of about -7.45 does).
+bool looksGzip(const std::string& path, const uint8_t* head, size_t headSize, size_t fileSize, size_t expected) {
+  const bool magic = headSize >= 2 && head[0] == 0x1f && head[1] == 0x8b;
+  return magic && (fileSize != expected || endsWith(lower(path), ".gz"));
+}
+
+// Opens a raw file of `dims` samples of `type`: whether it is gzip, and checked against that size
+// (a plain file exactly, a gzip one for a plausible ratio).
 std::ifstream openRawFile(const std::string& path, const Vec3i& dims, ScalarType type, bool& gzip) {
   const size_t expected = checkedBytes(dims, type, path);
   size_t fileSize;
   std::ifstream in = openFile(path, fileSize);
   char magic[2] = {0, 0};
   in.read(magic, 2);
-  gzip = in.gcount() == 2 && uint8_t(magic[0]) == 0x1f && uint8_t(magic[1]) == 0x8b;
+  gzip = looksGzip(path, reinterpret_cast<const uint8_t*>(magic), size_t(in.gcount()), fileSize, expected);
   if (!gzip && fileSize != expected) throw InputError(path, "", sizeMismatch(dims, type, fileSize, expected));
   if (gzip) checkInflatable(fileSize, expected, path);
   return in;
@@ -43,7 +50,7 @@ Grid loadRaw(const std::string& path, const RawLayout& layout) {
     // of framing and stored blocks), then checked like a file.
     const Bytes data = readWholeBytes(path, "raw volume of " + layoutName(dims, type) + " (" + std::to_string(expected) + " bytes)",
                                       uint64_t(expected) + expected / 256 + 65536);
-    const bool gzip = data.size() >= 2 && data[0] == 0x1f && data[1] == 0x8b;
+    const bool gzip = looksGzip(path, data.data(), data.size(), data.size(), expected);
     if (!gzip && data.size() != expected) throw InputError(path, "", sizeMismatch(dims, type, data.size(), expected));
     std::shared_ptr<uint8_t[]> samples = allocateSamples(expected);
     if (gzip)
