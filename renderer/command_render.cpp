@@ -11,7 +11,6 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <future>
 #include <map>
 #include <optional>
 #include <regex>
@@ -20,6 +19,7 @@
 #include "renderer/commands.h"
 #include "renderer/distributed.h"
 #include "renderer/render.h"
+#include "renderer/sequence.h"
 #include "renderer/video.h"
 #include "scene/time_series.h"
 #include "volume/input_error.h"
@@ -243,113 +243,12 @@ void writeStats(const std::string& path, const SceneDesc& scene, double loadSeco
   writeJsonFile(path, statsJson(scene, loadSeconds, buildSeconds, r, frames, threads, totalSeconds, ranks, perRank));
 }
 
-// A frame sequence (--frames, --iso-sweep, --orbit, volumes that change over time): frame f of N
-// has iso-surface `surface` (counted over all volumes in scene order) at from + (to - from) f /
-// (N - 1), the camera turned about its look-at point, around its up vector, by orbit f / N
-// degrees (a full 360 turn does not repeat the first frame), and each time series at its step
-// timeStepOfFrame(f, N, its steps) (N defaults to the longest series' steps: one frame a step).
-struct FrameSequence {
-  int frames = 1;
-  int steps = 1;     // the longest time series' (1: nothing changes over time)
-  int surface = -1;  // swept surface, or -1
-  double from = 0, to = 0;
-  double orbit = 0;
-  IsoSurfaceDesc* iso(SceneDesc& scene) const {
-    int k = 0;
-    for (VolumeDesc& v : scene.volumes)
-      for (IsoSurfaceDesc& d : v.isosurfaces)
-        if (k++ == surface) return &d;
-    return nullptr;
-  }
-  double isoValue(int f) const { return frames == 1 ? from : from + (to - from) * double(f) / double(frames - 1); }
-  // OUT.png -> OUT.0007.png (at least 4 digits, more for longer sequences).
-  std::string name(const std::string& output, int f) const {
-    if (frames == 1) return output;
-    const int digits = std::max<int>(4, int(std::to_string(frames - 1).size()));
-    std::string number = std::to_string(f);
-    return withSuffix(output, std::string(size_t(digits) - number.size(), '0') + number);
-  }
-};
-
-FrameSequence frameSequence(const RenderFlags& f, SceneDesc& scene) {
-  FrameSequence seq;
-  seq.steps = sceneTimeSteps(scene);
-  seq.frames = f.frames > 0 ? f.frames : seq.steps;
-  if (!f.isoSweep.empty()) {
-    std::istringstream in(f.isoSweep);
-    std::string index, from, to;
-    if (!std::getline(in, index, ':') || !std::getline(in, from, ':') || !std::getline(in, to) ||
-        index.find_first_not_of("0123456789") != std::string::npos || index.empty() || index.size() > 6)
-      throw InputError("--iso-sweep", "", "expected SURFACE:FROM:TO, e.g. 0:40:120 (SURFACE counts all iso-surfaces from 0)");
-    seq.surface = std::stoi(index);
-    try {
-      size_t used = 0;
-      seq.from = std::stod(from, &used);
-      if (used != from.size()) throw std::invalid_argument(from);
-      seq.to = std::stod(to, &used);
-      if (used != to.size()) throw std::invalid_argument(to);
-    } catch (const std::exception&) {
-      throw InputError("--iso-sweep", "", "'" + from + "' and '" + to + "' must be numbers");
-    }
-    if (!std::isfinite(seq.from) || !std::isfinite(seq.to))
-      throw InputError("--iso-sweep", "", "the iso values must be finite");
-    if (!seq.iso(scene)) {
-      size_t count = 0;
-      for (const VolumeDesc& v : scene.volumes) count += v.isosurfaces.size();
-      throw InputError("--iso-sweep", "", "no iso-surface " + index + " (the scene has " + std::to_string(count) +
-                                              ", counted from 0 over all volumes)");
-    }
-  }
-  if (f.orbit) {
-    if (!std::isfinite(*f.orbit) || std::fabs(*f.orbit) > 36000) throw InputError("--orbit", "", "expected degrees in [-36000, 36000]");
-    seq.orbit = *f.orbit;
-  }
-  if (seq.frames > 1 && seq.surface < 0 && !f.orbit && seq.steps == 1)
-    throw InputError("--frames", "", "a sequence needs --iso-sweep, --orbit or a volume that changes over time "
-                                     "(else every frame is the same)");
-  if (seq.frames == 1 && (seq.surface >= 0 || f.orbit))
-    throw InputError("--frames", "", "--iso-sweep and --orbit make a sequence: give --frames N (N >= 2)");
-  return seq;
-}
-
-// Time steps read ahead on a second thread: start() the next frame's step of a volume, and the next
-// World take()s it (waiting for it) if it is the step that World asks for; otherwise it is read
-// there. An error in a read ahead comes out of take(), where the frame that needs it is built.
-class TimeStepsAhead {
- public:
-  void start(size_t volume, VolumeDesc desc) {
-    Pending& p = m_pending[volume];
-    if (p.result.valid()) p.result.wait();  // (never two reads of one volume at once)
-    p.key = volumeSourceKey(desc);
-    p.result = std::async(std::launch::async, [desc = std::move(desc)] { return loadVolume(desc); });
-  }
-  VolumeFile take(size_t volume, const VolumeDesc& desc) {
-    auto it = m_pending.find(volume);
-    if (it == m_pending.end() || !it->second.result.valid() || it->second.key != volumeSourceKey(desc))
-      return loadVolume(desc);
-    VolumeFile f = it->second.result.get();
-    m_pending.erase(it);
-    return f;
-  }
-  ~TimeStepsAhead() {  // a read still under way (the sequence stopped or failed) is waited for
-    for (auto& [v, p] : m_pending)
-      if (p.result.valid()) p.result.wait();
-  }
-
- private:
-  struct Pending {
-    std::string key;
-    std::future<VolumeFile> result;
-  };
-  std::map<size_t, Pending> m_pending;
-};
-
-// The camera turned about its look-at point, around its up vector, by `degrees`.
-CameraDesc orbitCamera(CameraDesc c, double degrees) {
-  if (degrees == 0) return c;
-  const Transform r = Transform::rotate(degrees, c.up);
-  c.position = c.lookAt + r.vector(c.position - c.lookAt);
-  return c;
+// OUT.png -> OUT.0007.png for frame 7 of a sequence (at least 4 digits, more for longer ones).
+std::string frameName(const FrameSequence& seq, const std::string& output, int f) {
+  if (seq.frames == 1) return output;
+  const int digits = std::max<int>(4, int(std::to_string(seq.frames - 1).size()));
+  std::string number = std::to_string(f);
+  return withSuffix(output, std::string(size_t(digits) - number.size(), '0') + number);
 }
 
 // Loads the scene and checks every flag and output before any work: the part of a render
@@ -369,7 +268,11 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   RenderSetup r;
   r.scene = parseSceneFile(flags.scene, flags.overrides);
   applyFlags(flags, r.scene);
-  r.seq = frameSequence(flags, r.scene);
+  SequenceRequest request;
+  if (flags.frames > 0) request.frames = flags.frames;
+  request.isoSweep = flags.isoSweep;
+  request.orbit = flags.orbit;
+  r.seq = frameSequence(request, r.scene);
   if (r.scene.settings.dataParallel) checkDataParallel(r.scene);
   r.output = flags.output.empty() ? std::filesystem::path(flags.scene).stem().string() + ".png" : flags.output;
   std::error_code ec;
@@ -408,7 +311,7 @@ RenderSetup prepareRender(const RenderFlags& flags) {
   if (r.video) checkNames(r.output);
   if (!r.video || flags.keepFrames)
     for (int f : {0, r.seq.frames - 1})  // the first and last names: the same folder, other digits
-      checkNames(r.seq.name(r.video ? r.frameImages : r.output, f));
+      checkNames(frameName(r.seq, r.video ? r.frameImages : r.output, f));
   if (!flags.stats.empty()) checkWritable(flags.stats);
   if (s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator)) {
     // The sums, the denoiser's input and its working planes are all held at once: said before
@@ -459,8 +362,8 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       for (const std::string& w : world->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
     if (flags.colorbar) display.legends = legendsOf(*world, scene);
     warned = true;
-    const double degrees = seq.orbit * double(frame) / double(seq.frames);
-    Camera camera(orbitCamera(world->camera(), degrees), s.width, s.height);
+    const double degrees = seq.degrees(frame);
+    Camera camera(seq.camera(world->camera(), frame), s.width, s.height);
     auto integrator = makeIntegrator(s.integrator, *world, s);
     Film film(s.width, s.height);
     std::unique_ptr<Film> direct;
@@ -531,7 +434,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
       metadata["isotrace:exposure"] = jsonNumber(display.exposure);
       metadata["isotrace:tonemap"] = tonemapName(display.tonemap);
     }
-    const std::string frameOutput = setup.video ? seq.name(setup.frameImages, frame) : seq.name(output, frame);
+    const std::string frameOutput = frameName(seq, setup.video ? setup.frameImages : output, frame);
     std::vector<std::string> written;
     // One image of the frame (`part`: "" or compare's direct, global, indirect): a numbered
     // image, or the next frame of its video (and a numbered PNG with --keep-frames).
@@ -682,21 +585,13 @@ int render(const RenderFlags& flags) {
     SceneDesc& scene = setup.scene;
     const FrameSequence& seq = setup.seq;
     // A new iso value or time step is a new World (its bricks and BVH); a camera move is not.
-    bool changed = !world || seq.surface >= 0;
-    for (VolumeDesc& v : scene.volumes) {
-      const std::string before = volumeSourceKey(v);
-      selectTimeStep(v, timeStepOfFrame(frame, seq.frames, v.time.steps));
-      changed = changed || volumeSourceKey(v) != before;
-    }
-    if (!changed) return;
-    if (seq.surface >= 0) seq.iso(scene)->value = seq.isoValue(frame);
+    if (!seq.apply(scene, frame) && world) return;
     // Volumes whose step has not changed stay loaded from the previous frame's World. Not so for a
     // data-parallel rank: its part of a volume is balanced by the bricks the iso values make
     // active, so each frame has its own parts (read again).
     const bool dataParallel = scene.settings.dataParallel && job.distributed();
     const bool first = !world;  // (the first World's bounds are shared once every rank has loaded, below)
-    world = std::make_unique<World>(scene, scene.settings.intersector, dataParallel ? nullptr : world.get(),
-                                    [&](size_t v, const VolumeDesc& desc) { return ahead.take(v, desc); });
+    world = std::make_unique<World>(scene, scene.settings.intersector, dataParallel ? nullptr : world.get(), ahead.loader());
     worldFrame = frame;
     loadSeconds += world->loadSeconds();
     buildSeconds += world->buildSeconds();
@@ -706,13 +601,7 @@ int render(const RenderFlags& flags) {
       else if (scene.volumes[v].time.varying()) checkSameShape(scene, scene.volumes[v], firstShapes[v], grid);
     }
     if (dataParallel && !first) shareSceneBounds();  // (every rank builds every frame's World)
-    if (const int next = nextFrame(frame); next >= 0 && !dataParallel)
-      for (size_t v = 0; v < scene.volumes.size(); ++v) {
-        VolumeDesc step = scene.volumes[v];
-        if (!step.time.varying()) continue;
-        selectTimeStep(step, timeStepOfFrame(next, seq.frames, step.time.steps));
-        if (volumeSourceKey(step) != volumeSourceKey(scene.volumes[v])) ahead.start(v, std::move(step));
-      }
+    if (const int next = nextFrame(frame); next >= 0 && !dataParallel) ahead.startFrame(seq, scene, next);
   };
   auto firstFrame = [&] {
     for (int f = 0; f < setup.seq.frames; ++f)

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
+#include <sstream>
 
 #include "volume/input_error.h"
 #include "volume/loaders.h"
@@ -139,13 +140,21 @@ int currentTimeStep(const VolumeDesc& v) {
 }
 
 std::string volumeSourceKey(const VolumeDesc& v) {
-  if (v.array) return "array " + std::to_string(reinterpret_cast<uintptr_t>(v.array.get()));
-  if (v.field) return "field " + std::to_string(int(*v.field)) + " " + std::to_string(v.resolution.x) + "x" +
-                      std::to_string(v.resolution.y) + "x" + std::to_string(v.resolution.z);
-  std::string key = "file " + v.file + "\n" + v.part.series + "\n" + v.part.grid + "\n" + std::to_string(v.part.time);
-  if (v.layout.dims) key += "\n" + shapeText(*v.layout.dims, v.layout.type.value_or(ScalarType::UInt8));
-  if (v.layout.type) key += "\ntype " + std::string(scalarTypeName(*v.layout.type));
-  return key + (v.layout.bigEndian ? "\nbig" : "");
+  std::ostringstream key;
+  key.precision(17);
+  if (v.array) key << "array " << v.array.get();
+  else if (v.field) key << "field " << int(*v.field) << ' ' << shapeText(v.resolution, ScalarType::Float32);
+  else key << "file " << v.file << '\n' << v.part.series << '\n' << v.part.grid << '\n' << v.part.time;
+  if (v.layout.dims) key << "\ndims " << shapeText(*v.layout.dims, ScalarType::UInt8);
+  if (v.layout.type) key << "\ntype " << scalarTypeName(*v.layout.type);
+  if (v.layout.bigEndian) key << "\nbig";
+  // (The placement is applied as the volume loads: part of what it loads.)
+  if (v.origin) key << "\norigin " << v.origin->x << ' ' << v.origin->y << ' ' << v.origin->z;
+  if (v.spacing) key << "\nspacing " << v.spacing->x << ' ' << v.spacing->y << ' ' << v.spacing->z;
+  key << "\ntransform";
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 4; ++j) key << ' ' << v.transform.m[i][j];
+  return key.str();
 }
 
 void checkSameShape(const SceneDesc& scene, const VolumeDesc& v, const VolumeShape& first, const Grid& step) {
