@@ -25,8 +25,10 @@
 #include "accuracy/accuracy.h"
 #include "accuracy/watertight.h"
 #include "renderer/commands.h"
+#include "renderer/distributed.h"
 #include "renderer/film.h"
 #include "renderer/render.h"
+#include "renderer/sequence.h"
 #include "scene/gltf.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
@@ -127,26 +129,6 @@ ArrayGrid gridFromArray(py::array array, std::array<double, 3> spacing, std::arr
 
 SceneDesc parseScene(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids) {
   return parseSceneText(text, path, {}, &grids);
-}
-
-// What makes two volume entries load the same grid: a World of the last render can lend its
-// grids and brick ranges to the next when only iso values, materials, camera and the like changed.
-std::string loadKey(const SceneDesc& scene) {
-  std::ostringstream key;
-  key.precision(17);
-  for (const VolumeDesc& v : scene.volumes) {
-    key << v.file << '|' << (v.field ? int(*v.field) : -1) << '|' << v.resolution.x << ',' << v.resolution.y << ','
-        << v.resolution.z << '|' << v.array.get() << '|' << v.part.series << '|' << v.part.grid << '|'
-        << v.layout.bigEndian << '|';
-    if (v.layout.dims) key << v.layout.dims->x << ',' << v.layout.dims->y << ',' << v.layout.dims->z;
-    if (v.layout.type) key << int(*v.layout.type);
-    if (v.origin) key << '|' << v.origin->x << ',' << v.origin->y << ',' << v.origin->z;
-    if (v.spacing) key << '|' << v.spacing->x << ',' << v.spacing->y << ',' << v.spacing->z;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 4; ++j) key << ',' << v.transform.m[i][j];
-    key << '\n';
-  }
-  return key.str();
 }
 
 py::array_t<float> imageOf(const Film& film) {
@@ -284,27 +266,98 @@ py::dict denoiseBuffers(const DenoiseBuffers& b, const std::string& modeName, in
   return out;
 }
 
+// Under mpirun (more than one rank) the process's place in the MPI job: created by the first
+// render (MPI_Init, on the thread that renders: MPI is used from that thread only), finalised at
+// interpreter exit. Null otherwise: MPI is never touched.
+std::unique_ptr<MpiJob> g_mpiJob;
+std::unique_ptr<MpiJob>& pythonMpiJob() {
+  if (!g_mpiJob && launchedRanks().size > 1) g_mpiJob = std::make_unique<MpiJob>();
+  return g_mpiJob;
+}
+
+// Renders that run at once in this process (several Scenes on several threads): the stop request
+// that Ctrl-C makes is the process's, cleared when the first begins and the last ends.
+std::mutex g_rendersMutex;
+int g_renders = 0;
+struct RenderRunning {
+  RenderRunning() {
+    std::lock_guard<std::mutex> lock(g_rendersMutex);
+    if (g_renders++ == 0) clearStopRequest();
+  }
+  ~RenderRunning() {
+    std::lock_guard<std::mutex> lock(g_rendersMutex);
+    if (--g_renders == 0) clearStopRequest();
+  }
+};
+
+// A sequence's request from Python: {"frames": N or None, "iso_sweep": (surface, from, to) or
+// None, "orbit": degrees or None}.
+SequenceRequest sequenceRequest(const py::dict& d) {
+  SequenceRequest r;
+  r.where = "isotrace.render_sequence";
+  if (d.contains("frames") && !d["frames"].is_none()) {
+    if (!py::isinstance<py::int_>(d["frames"]) || py::isinstance<py::bool_>(d["frames"]))
+      throw InputError(r.where, "frames", "expected a whole number of frames");
+    r.frames = int(std::clamp<long long>(d["frames"].cast<long long>(), -1, 1 << 30));
+  }
+  if (d.contains("orbit") && !d["orbit"].is_none()) r.orbit = d["orbit"].cast<double>();
+  if (d.contains("iso_sweep") && !d["iso_sweep"].is_none()) {
+    const py::object sweep = d["iso_sweep"];
+    if (!py::isinstance<py::sequence>(sweep) || py::isinstance<py::str>(sweep) || py::len(sweep) != 3)
+      throw InputError(r.where, "iso_sweep", "expected (surface, from, to), e.g. (0, 40, 120)");
+    const py::sequence s = sweep;
+    if (!py::isinstance<py::int_>(s[0]) || s[0].cast<long long>() < 0 || s[0].cast<long long>() > 999999)
+      throw InputError(r.where, "iso_sweep", "the surface is a whole number from 0 (counted over all volumes)");
+    std::ostringstream text;
+    text.precision(17);
+    text << s[0].cast<long long>() << ':' << s[1].cast<double>() << ':' << s[2].cast<double>();
+    r.isoSweep = text.str();
+  }
+  return r;
+}
+
 class Renderer {
  public:
   py::dict render(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids,
                   const py::dict& options, py::object progress);
   py::dict autoCamera(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids);
+  // The frames of a sequence of this scene (isotrace.render_sequence), checked.
+  int sequenceLength(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids,
+                     const py::dict& request);
 
  private:
   const World& worldFor(const SceneDesc& scene, double& loadSeconds, double& buildSeconds);
+  // One render of this Scene at a time: a second thread's is refused (InputError), not queued.
+  class Busy {
+   public:
+    explicit Busy(Renderer& r) : m_lock(r.m_busy, std::try_to_lock) {
+      if (!m_lock.owns_lock())
+        throw InputError("isotrace.Scene", "", "is being rendered by another thread; give each thread its own Scene "
+                                               "(scene.copy() shares the arrays) or wait for that render");
+    }
+
+   private:
+    std::unique_lock<std::mutex> m_lock;
+  };
+  std::mutex m_busy;
+  // The last World: the next one reuses each volume that loads alike (the same source: only iso
+  // values, materials, camera and the like changed), and takes a sequence's next step read ahead.
   std::unique_ptr<World> m_world;
-  std::string m_key;
+  TimeStepsAhead m_ahead;
 };
 
 const World& Renderer::worldFor(const SceneDesc& scene, double& loadSeconds, double& buildSeconds) {
-  const std::string key = loadKey(scene);
-  const World* same = m_world && key == m_key ? m_world.get() : nullptr;
-  std::unique_ptr<World> world = std::make_unique<World>(scene, scene.settings.intersector, same);
+  std::unique_ptr<World> world = std::make_unique<World>(scene, scene.settings.intersector, m_world.get(), m_ahead.loader());
   loadSeconds = world->loadSeconds();
   buildSeconds = world->buildSeconds();
   m_world = std::move(world);
-  m_key = key;
   return *m_world;
+}
+
+int Renderer::sequenceLength(const std::string& text, const std::string& path,
+                             const std::vector<std::shared_ptr<const Grid>>& grids, const py::dict& request) {
+  SceneDesc scene = parseScene(text, path, grids);
+  return frameSequence(sequenceRequest(request), scene).frames;
 }
 
 // The render options a Python call may set, checked like the command line's flags.
@@ -380,17 +433,42 @@ void applyOptions(const py::dict& o, SceneDesc& scene, RenderOptions& options) {
 py::dict Renderer::render(const std::string& text, const std::string& path,
                           const std::vector<std::shared_ptr<const Grid>>& grids, const py::dict& opts, py::object progress) {
   const auto start = std::chrono::steady_clock::now();
+  const Busy busy(*this);
   SceneDesc scene = parseScene(text, path, grids);
   RenderOptions options;
   applyOptions(opts, scene, options);
+  // Frame f of a sequence (isotrace.render_sequence): its iso value, time steps and camera.
+  std::optional<FrameSequence> seq;
+  int frameIndex = 0;
+  if (opts.contains("sequence")) {
+    seq = frameSequence(sequenceRequest(opts["sequence"]), scene);
+    frameIndex = opts["frame"].cast<int>();
+    if (frameIndex < 0 || frameIndex >= seq->frames) throw InputError("isotrace.render_sequence", "frame", "out of range");
+    seq->apply(scene, frameIndex);
+  }
+  std::unique_ptr<MpiJob>& job = pythonMpiJob();
   double loadSeconds = 0, buildSeconds = 0;
-  const World* world;
+  const World* world = nullptr;
   {
     py::gil_scoped_release release;
-    world = &worldFor(scene, loadSeconds, buildSeconds);
+    if (!job) {
+      world = &worldFor(scene, loadSeconds, buildSeconds);
+    } else {
+      // Every rank loads for itself; they agree on the first failure before any talks (a rank
+      // that raised alone would leave the others waiting for it for ever).
+      std::string error;
+      try {
+        world = &worldFor(scene, loadSeconds, buildSeconds);
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+      error = job->firstError(error);
+      if (!error.empty()) throw InputError(error);
+    }
+    if (seq && frameIndex + 1 < seq->frames && !job) m_ahead.startFrame(*seq, scene, frameIndex + 1);
   }
   const RenderSettings& s = scene.settings;
-  const Camera camera(world->camera(), s.width, s.height);
+  const Camera camera(seq ? seq->camera(world->camera(), frameIndex) : world->camera(), s.width, s.height);
   const std::unique_ptr<Integrator> integrator = makeIntegrator(s.integrator, *world, s);
   Film film(s.width, s.height);
   std::unique_ptr<Film> direct;
@@ -408,22 +486,32 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
   // The render runs on its own thread without the GIL; this one wakes every 50 ms to report
   // progress and to let Python look at its signals: Ctrl-C asks the render to stop at the next
   // tile (once the first pass is done), and the partial frame comes back with the interrupt.
-  clearStopRequest();
+  // Under mpirun the frame is rendered over all ranks by tiles (renderer/distributed.h), on this
+  // thread (MPI's): no progress reports, and rank 0 alone gets the image.
+  const RenderRunning running;
   RenderResult result;
   std::exception_ptr failure;
   std::mutex mutex;
   std::condition_variable finished;
   bool over = false;
-  std::thread worker([&] {
+  auto renderIt = [&] {
     try {
-      result = renderFrame(camera, *integrator, options, film, direct.get());
+      result = job ? renderFrameDistributed(*job, camera, *integrator, options, film, direct.get(), nullptr)
+                   : renderFrame(camera, *integrator, options, film, direct.get());
     } catch (...) {
       failure = std::current_exception();
     }
     std::lock_guard<std::mutex> lock(mutex);
     over = true;
     finished.notify_all();
-  });
+  };
+  std::thread worker;
+  if (job) {
+    py::gil_scoped_release release;
+    renderIt();
+  } else {
+    worker = std::thread(renderIt);
+  }
   bool interrupted = false;
   std::optional<py::error_already_set> raised;  // by a signal handler or the progress callback
   for (;;) {
@@ -454,13 +542,24 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
     }
     if (ended) break;
   }
-  worker.join();
-  clearStopRequest();
+  if (worker.joinable()) worker.join();
   if (failure) std::rethrow_exception(failure);
   if (raised) throw std::move(*raised);
 
   py::dict out;
   const int threads = s.threads > 0 ? s.threads : tbb::this_task_arena::max_concurrency();
+  const int rank = job ? job->rank() : 0, ranks = job ? job->size() : 1;
+  out["rank"] = rank;
+  out["ranks"] = ranks;
+  out["frame"] = frameIndex;
+  if (rank != 0) {  // (rank 0 holds the image)
+    out["rgb"] = py::none();
+    out["layers"] = py::dict();
+    out["signed"] = integrator->signedOutput();
+    out["stats"] = statsJson(scene, loadSeconds, buildSeconds, result, 1, threads, 0, ranks, nullptr);
+    out["keyboard_interrupt"] = false;
+    return out;
+  }
   if (interrupted) result.interrupted = true;
   Film indirect(0, 0);
   if (direct) indirect = indirectOf(film, *direct);
@@ -475,7 +574,7 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
   }
   if (buffers) out["denoise_input"] = buffers;
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  out["stats"] = statsJson(scene, loadSeconds, buildSeconds, result, 1, threads, seconds, 1, nullptr);
+  out["stats"] = statsJson(scene, loadSeconds, buildSeconds, result, 1, threads, seconds, ranks, nullptr);
   out["signed"] = integrator->signedOutput();
   if (direct) {
     out["rgb"] = imageOf(film);
@@ -491,6 +590,7 @@ py::dict Renderer::render(const std::string& text, const std::string& path,
 
 py::dict Renderer::autoCamera(const std::string& text, const std::string& path,
                               const std::vector<std::shared_ptr<const Grid>>& grids) {
+  const Busy busy(*this);
   SceneDesc scene = parseScene(text, path, grids);
   scene.camera.frameScene = true;
   scene.camera.gltfCamera.clear();
@@ -683,7 +783,15 @@ PYBIND11_MODULE(_core, m) {
       })
       .def("auto_camera", [gridsOf](Renderer& r, const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids) {
         return r.autoCamera(text, path, gridsOf(grids));
+      })
+      .def("sequence_length", [gridsOf](Renderer& r, const std::string& text, const std::string& path,
+                                        const std::vector<ArrayGrid>& grids, const py::dict& request) {
+        return r.sequenceLength(text, path, gridsOf(grids), request);
       });
+  m.def("mpi_rank", [] { return launchedRanks().rank; });
+  m.def("mpi_size", [] { return launchedRanks().size; });
+  // MPI ends with the interpreter (on its main thread, before the module goes).
+  py::module_::import("atexit").attr("register")(py::cpp_function([] { g_mpiJob.reset(); }));
   m.def("save_image", &saveImage, py::arg("rgb"), py::arg("layers"), py::arg("path"), py::arg("exposure"), py::arg("tonemap"),
         py::arg("signed_data"));
   m.def("read_image", &readImage, py::arg("path"));

@@ -25,11 +25,13 @@ from . import _core
 
 InputError = _core.InputError
 
-__all__ = ["InputError", "Volume", "Scene", "Frame", "render", "watertight", "bench", "mesh", "read_image"]
+__all__ = ["InputError", "Volume", "Scene", "Frame", "render", "render_sequence", "watertight", "bench", "mesh",
+           "read_image", "mpi_rank", "mpi_size"]
 
 
 class Volume:
-    """A 3D numpy array as a volume, used in place (the volume keeps a reference to the array).
+    """A 3D numpy array as a volume, used in place (the volume keeps a reference to the array);
+    or a volume that changes over time: a 4D array or a list of 3D arrays, one per time step.
 
     array: uint8, uint16, int16 or float32 (held as they are); float64 is held as float32 (a
         copy). Other dtypes are refused.
@@ -43,19 +45,54 @@ class Volume:
     transform: an optional 4 x 4 matrix (row-major, nested lists or a numpy array) placing the
         grid in the world (e.g. a NIfTI affine's rotation), as the scene file's "transform".
     NaN or infinity anywhere is refused, naming the index (in the array's own axis order).
+    Time steps: a 4D array holds them along its slowest axis, so that each step is used in place:
+        (nt, nz, ny, nx) in C order with axes "zyx" (``array[t]`` is step t), (nx, ny, nz, nt) in
+        Fortran order with axes "xyz" (``array[..., t]``: nibabel's 4D ``get_fdata()``). A list of
+        3D arrays is a step each. Every step must have the same shape and dtype. A sequence
+        (isotrace.render_sequence) steps through them; a single render shows step 0.
     """
 
     def __init__(self, array, spacing=(1, 1, 1), origin=(0, 0, 0), axes="zyx", transform=None):
         import numpy
-        if not isinstance(array, numpy.ndarray):
-            raise InputError("isotrace.Volume: array: expected a numpy array, got %s" % type(array).__name__)
-        self._grid = _core.grid_from_array(array, tuple(float(s) for s in spacing), tuple(float(o) for o in origin), axes)
-        if self._grid.copied:
+        spacing = tuple(float(s) for s in spacing)
+        origin = tuple(float(o) for o in origin)
+        if isinstance(array, (list, tuple)):
+            steps = list(array)
+            if not steps:
+                raise InputError("isotrace.Volume: array: an empty list of time steps")
+        elif isinstance(array, numpy.ndarray) and array.ndim == 4:
+            if axes not in ("zyx", "xyz"):
+                raise InputError('isotrace.Volume: axes: expected "zyx" or "xyz", got "%s"' % axes)
+            steps = [array[t] for t in range(array.shape[0])] if axes == "zyx" else \
+                [array[..., t] for t in range(array.shape[3])]
+            if not steps:
+                raise InputError("isotrace.Volume: array: a 4D array with no time step")
+        else:
+            steps = [array]
+        for k, a in enumerate(steps):
+            if not isinstance(a, numpy.ndarray):
+                raise InputError("isotrace.Volume: array%s: expected a numpy array, got %s"
+                                 % ("" if len(steps) == 1 and a is array else "[%d]" % k, type(a).__name__))
+        self._grids = []
+        for k, a in enumerate(steps):
+            try:
+                grid = _core.grid_from_array(a, spacing, origin, axes)
+            except InputError as e:
+                if len(steps) == 1:
+                    raise
+                raise InputError("%s (time step %d)" % (e, k)) from None
+            if self._grids and (grid.dims != self._grids[0].dims or grid.dtype != self._grids[0].dtype):
+                raise InputError("isotrace.Volume: array: time step %d is %s %s, step 0 %s %s: the steps must agree"
+                                 % (k, "x".join(map(str, grid.dims)), grid.dtype,
+                                    "x".join(map(str, self._grids[0].dims)), self._grids[0].dtype))
+            self._grids.append(grid)
+        self._grid = self._grids[0]
+        if any(g.copied for g in self._grids):
             warnings.warn("isotrace.Volume: the array was copied once (%s to x-fastest %s); pass %s to use it in place"
                           % (array.dtype, self._grid.dtype, "a C-ordered array shaped (nz, ny, nx)" if axes == "zyx"
                              else "a Fortran-ordered array shaped (nx, ny, nz)"), stacklevel=2)
-        self.spacing = tuple(float(s) for s in spacing)
-        self.origin = tuple(float(o) for o in origin)
+        self.spacing = spacing
+        self.origin = origin
         self.axes = axes
         self.transform = None
         if transform is not None:
@@ -68,6 +105,11 @@ class Volume:
     def dims(self):
         """Samples per axis, (nx, ny, nz)."""
         return self._grid.dims
+
+    @property
+    def steps(self):
+        """Time steps (1: a volume that does not change)."""
+        return len(self._grids)
 
     @property
     def dtype(self):
@@ -84,7 +126,9 @@ class Volume:
         return self._grid.range
 
     def __repr__(self):
-        return "isotrace.Volume(dims=%s, dtype=%s, spacing=%s, origin=%s)" % (self.dims, self.dtype, self.spacing, self.origin)
+        steps = ", steps=%d" % self.steps if self.steps > 1 else ""
+        return "isotrace.Volume(dims=%s, dtype=%s, spacing=%s, origin=%s%s)" % (self.dims, self.dtype, self.spacing,
+                                                                                self.origin, steps)
 
 
 class Scene:
@@ -96,6 +140,10 @@ class Scene:
     frame(). Renders of one Scene keep its volumes loaded: changing an iso value
     (``scene.doc["volumes"][0]["isosurfaces"][0]["value"] = 300``) and rendering again
     rebuilds only the surfaces.
+    Threads: one render of a Scene at a time. A second thread rendering the same Scene meanwhile
+    gets isotrace.InputError ("is being rendered by another thread"); give each thread its own
+    (``scene.copy()``: the same doc and arrays, its own loaded state). Different Scenes render
+    at once from several threads (Ctrl-C stops them all).
     """
 
     def __init__(self, doc=None, path=None):
@@ -137,7 +185,17 @@ class Scene:
             raise InputError("%s: the scene is not JSON: %s" % (self.path, e)) from None
 
     def _grids(self):
-        return [v._grid for v in self.volumes]
+        return [g for v in self.volumes for g in v._grids]
+
+    def copy(self):
+        """A Scene with a copy of this one's doc and the same Volumes (arrays shared, not copied),
+        and its own loaded state: for another thread to render."""
+        other = Scene.__new__(Scene)
+        other.doc = copy.deepcopy(self.doc)
+        other.path = self.path
+        other.volumes = list(self.volumes)
+        other._renderer = _core.Renderer()
+        return other
 
     def check(self):
         """Parses the scene as the renderer will (isotrace.InputError if anything is wrong)."""
@@ -150,7 +208,9 @@ class Scene:
         "slices", "clip", ...); returns the volume's index in the scene."""
         if not isinstance(volume, Volume):
             raise InputError("isotrace.Scene.add_volume: expected an isotrace.Volume, got %s" % type(volume).__name__)
-        entry = {"array": len(self.volumes), "isosurfaces": list(isosurfaces)}
+        first = sum(v.steps for v in self.volumes)  # (the arrays' index: every step of every Volume)
+        entry = {"array": first if volume.steps == 1 else list(range(first, first + volume.steps)),
+                 "isosurfaces": list(isosurfaces)}
         entry.update(keys)
         if volume.transform is not None and "transform" not in keys:
             entry["transform"] = {"matrix": [x for row in volume.transform for x in row]}
@@ -223,9 +283,15 @@ class Frame:
     depth, variance, samples). stats: what ``isotrace render --stats`` writes. For the
     `compare` integrator, direct and indirect (rgb is the global image); else None.
     raw: the image as rendered when rgb is denoised (render(denoise=...), denoised()), else None.
-    denoised(mode): the frame denoised from the feature buffers it keeps."""
+    denoised(mode): the frame denoised from the feature buffers it keeps.
+    index: the frame's place in a sequence (render_sequence), else 0.
+    Under mpirun (more than one rank) rank 0's frame holds the image; on the other ranks rgb is
+    None and save() writes nothing (rank and ranks say which is which)."""
 
     def __init__(self, result):
+        self.index = int(result.get("frame", 0))
+        self.rank = int(result.get("rank", 0))
+        self.ranks = int(result.get("ranks", 1))
         self.rgb = result["rgb"]
         self.direct = result.get("direct")
         self.indirect = result.get("indirect")
@@ -279,18 +345,25 @@ class Frame:
     def save(self, path, exposure=0.0, tonemap="clamp"):
         """Writes the image: EXR (linear, with the extra layers), PNG or JPEG (8-bit sRGB after
         `exposure` EV and `tonemap`: clamp, aces, filmic). `compare` frames write the global
-        image here; save direct/indirect with isotrace.Frame(...) of your own or numpy."""
+        image here; save direct/indirect with isotrace.Frame(...) of your own or numpy. On an MPI
+        rank other than 0 (no image) nothing is written and None returned."""
+        if self.rgb is None:
+            return None
         _core.save_image(self.rgb, self._layers, os.fspath(path), float(exposure), str(tonemap), self._signed)
         return path
 
     def png(self, exposure=0.0, tonemap="clamp"):
-        """The image as PNG bytes."""
+        """The image as PNG bytes (None on an MPI rank other than 0)."""
+        if self.rgb is None:
+            return None
         return _core.png_bytes(self.rgb, float(exposure), str(tonemap), self._signed)
 
     def _repr_png_(self):
         return self.png()
 
     def __repr__(self):
+        if self.rgb is None:
+            return "isotrace.Frame(rank %d of %d: the image is rank 0's)" % (self.rank, self.ranks)
         h, w = self.rgb.shape[:2]
         return "isotrace.Frame(%dx%d, %s spp, %s)" % (w, h, self.stats.get("spp"), self.stats.get("integrator"))
 
@@ -316,7 +389,8 @@ def _progress_callback(progress):
 
 
 def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed=None, adaptive=None, aovs=None,
-           max_depth=None, intersector=None, ray_flow=None, clamp=None, alpha=None, denoise=None, progress=None):
+           max_depth=None, intersector=None, ray_flow=None, clamp=None, alpha=None, denoise=None, progress=None,
+           sequence=None, frame=None):
     """Renders `scene` (a Scene, a dict, or a scene file's path) and returns a Frame.
 
     Options left None keep the scene's own (its "film", "integrator", "intersector"): spp,
@@ -330,14 +404,18 @@ def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed
     if tqdm is installed and no callback is given). The GIL is released while rendering.
     Ctrl-C (KeyboardInterrupt) stops the render at the next tile and raises with the partial
     frame as the exception's ``frame`` attribute. The image is the same, bit for bit, as
-    ``isotrace render`` of the same scene with the same options. One render at a time per
-    process (the stop request it listens to is the process's).
+    ``isotrace render`` of the same scene with the same options. One render of a Scene at a time
+    (another thread's meanwhile is refused: scene.copy() for each thread); Ctrl-C stops every
+    render of the process. Under mpirun (mpi_size() > 1) the frame is rendered over all ranks
+    (no progress reports; call it from the thread that first did, MPI's): rank 0's frame holds
+    the image, bit for bit one process's.
     """
     if not isinstance(scene, Scene):
         scene = Scene.load(scene) if isinstance(scene, (str, os.PathLike)) else Scene(scene)
     options = {k: v for k, v in dict(spp=spp, integrator=integrator, resolution=resolution, threads=threads, seed=seed,
                                       adaptive=adaptive, aovs=aovs, max_depth=max_depth, intersector=intersector,
-                                      ray_flow=ray_flow, clamp=clamp, alpha=alpha, denoise=denoise).items()
+                                      ray_flow=ray_flow, clamp=clamp, alpha=alpha, denoise=denoise,
+                                      sequence=sequence, frame=frame).items()
                if v is not None}
     result = scene._renderer.render(scene._text(), scene.path, scene._grids(), options, _progress_callback(progress))
     frame = Frame(result)
@@ -347,6 +425,64 @@ def render(scene, spp=None, integrator=None, resolution=None, threads=None, seed
         error.frame = frame
         raise error
     return frame
+
+
+def render_sequence(scene, frames=None, orbit=None, iso_sweep=None, progress=None, **options):
+    """Renders a sequence of frames of `scene` (as ``isotrace render --frames``), yielding a Frame
+    each as it is done (a generator: ``for frame in isotrace.render_sequence(...)``).
+
+    frames: how many (default: one per time step of the scene's volumes that change over time, a
+        4D or list Volume, or a "file" list or pattern); orbit: degrees the camera turns about its
+        look-at point over the frames (360: a turntable); iso_sweep: (surface, from, to) sweeps
+        iso-surface `surface` (counted over all volumes) from `from` to `to`. Frame f shows each
+        time series at step f * steps // frames; frame.index is f. The frames are the command
+        line's, bit for bit. A time series' next step is read on a second thread while a frame
+        renders.
+    progress: called with (frames done, frames) after each frame, and before the first; or a
+        tqdm-like bar (an object with update(n)) advanced by one per frame. None: a tqdm bar when
+        tqdm is installed.
+    options: as render()'s (spp, resolution, integrator, denoise, ...).
+    """
+    s = _as_scene(scene)
+    request = {"frames": frames, "orbit": orbit, "iso_sweep": iso_sweep}
+    count = s._renderer.sequence_length(s._text(), s.path, s._grids(), request)
+    bar = None
+    if progress is None:
+        try:
+            import tqdm
+            bar = tqdm.tqdm(total=count, unit="frame", leave=False)
+        except ImportError:
+            pass
+    elif hasattr(progress, "update") and not callable(progress):
+        bar = progress
+    report = progress if callable(progress) and bar is None else None
+    if report:
+        report(0, count)
+    try:
+        for f in range(count):
+            opts = dict(options)
+            opts["sequence"] = request
+            opts["frame"] = f
+            yield render(s, **opts)
+            if bar is not None:
+                bar.update(1)
+            if report:
+                report(f + 1, count)
+    finally:
+        if bar is not None and progress is None:
+            bar.close()
+
+
+def mpi_rank():
+    """This process's rank when mpirun started it (else 0), read from the launcher's environment."""
+    return _core.mpi_rank()
+
+
+def mpi_size():
+    """The ranks mpirun started (else 1). With more than one, render() spreads each frame over all
+    ranks by tiles (every rank must render the same scenes in the same order); rank 0's frame holds
+    the image, the same bits as one process's."""
+    return _core.mpi_size()
 
 
 def _as_scene(scene):
