@@ -739,7 +739,14 @@ py::tuple mesh(const std::string& text, const std::string& path, const std::vect
       normals.mutable_at(i, c) = m.normals[size_t(i)][c];
     }
   std::copy(m.indices.begin(), m.indices.end(), triangles.mutable_data());
-  return py::make_tuple(vertices, triangles, normals);
+  py::object colors = py::none();
+  if (!m.colors.empty()) {
+    py::array_t<float> c({nv, py::ssize_t(3)});
+    for (py::ssize_t i = 0; i < nv; ++i)
+      for (int k = 0; k < 3; ++k) c.mutable_at(i, k) = m.colors[size_t(i)][k];
+    colors = c;
+  }
+  return py::make_tuple(vertices, triangles, normals, colors);
 }
 
 }  // namespace

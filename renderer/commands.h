@@ -52,8 +52,11 @@ std::string jsonString(const std::string& s);
 
 // Iso-surface `surfaceIndex` of volume `volumeIndex` as triangles in world space (OpenVDB's
 // volumeToMesh), normals out of the solid, with the surface's material colour: `isotrace mesh`
-// and the Python module's isotrace.mesh(). An index out of range is an InputError naming
-// `volumeFlag` / `surfaceFlag`; so is an iso value that gives no surface.
+// and the Python module's isotrace.mesh(). The scene's and the volume's "clip" cut it as the
+// render does, and the cut is capped, so that a surface closed before is closed after;
+// "color_by" ("cap_color_by" on the caps) becomes vertex colours (the material's colour then
+// white). An index out of range is an InputError naming `volumeFlag` / `surfaceFlag`; so is an
+// iso value that gives no surface.
 GltfMeshOut surfaceMesh(const SceneDesc& scene, int volumeIndex, int surfaceIndex, const std::string& volumeFlag,
                         const std::string& surfaceFlag);
 

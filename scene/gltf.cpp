@@ -677,6 +677,9 @@ void saveGltfMesh(const std::string& path, const GltfMeshOut& mesh) {
   model.accessors[positions].maxValues = {hi.x, hi.y, hi.z};
   const int normals = accessor(view(mesh.normals.data(), n * sizeof(Vec3f), TINYGLTF_TARGET_ARRAY_BUFFER),
                                TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, n);
+  const int colors = mesh.colors.size() == n ? accessor(view(mesh.colors.data(), n * sizeof(Vec3f), TINYGLTF_TARGET_ARRAY_BUFFER),
+                                                       TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, n)
+                                              : -1;
   const int indices = accessor(view(mesh.indices.data(), mesh.indices.size() * sizeof(uint32_t),
                                     TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER),
                                TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT, TINYGLTF_TYPE_SCALAR, mesh.indices.size());
@@ -692,6 +695,7 @@ void saveGltfMesh(const std::string& path, const GltfMeshOut& mesh) {
   tinygltf::Primitive primitive;
   primitive.attributes["POSITION"] = positions;
   primitive.attributes["NORMAL"] = normals;
+  if (colors >= 0) primitive.attributes["COLOR_0"] = colors;  // (glTF multiplies them with the base colour)
   primitive.indices = indices;
   primitive.material = 0;
   primitive.mode = TINYGLTF_MODE_TRIANGLES;

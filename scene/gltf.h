@@ -75,6 +75,7 @@ struct GltfMeshOut {
   std::string name;
   std::vector<Vec3f> positions, normals;  // normals unit, one per position
   std::vector<uint32_t> indices;          // three per triangle, counter-clockwise = front
+  std::vector<Vec3f> colors;              // linear RGB per position (COLOR_0), or none
   Vec3f color{0.8f, 0.8f, 0.8f};
   float metallic = 0, roughness = 0.5f;
 };

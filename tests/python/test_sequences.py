@@ -181,3 +181,21 @@ def test_mpirun_renders_one_frame_over_the_ranks_bit_for_bit(tmp_path):
     assert sorted(two.stdout.split("\n")[:2]) == ["0 2 0 2 False", "1 2 1 2 True"], two.stdout
     a, b = isotrace.read_image(tmp_path / "one.exr"), isotrace.read_image(tmp_path / "two.exr")
     assert a.max() > 0.05 and np.array_equal(a, b)
+
+
+def test_mesh_is_clipped_capped_and_coloured():
+    scene = isotrace.Scene({"lights": LIGHTS})
+    scene.add_volume(isotrace.Volume(balls([8])[0]), isosurfaces=[
+        {"value": 0, "color_by": {"field": "gradient_magnitude", "map": [[0, [0, 0, 1]], [9, [0, 0, 1]]]},
+         "cap_color_by": {"field": "gradient_magnitude", "map": [[0, [1, 0, 0]], [9, [1, 0, 0]]]}}],
+        clip=[{"plane": {"point": [11.5, 11.5, 11.5], "normal": [0, 0, 1]}}])
+    vertices, triangles, normals, colors = isotrace.mesh(scene, colors=True)
+    assert vertices[:, 2].max() <= 11.5 + 1e-3, "nothing beyond the clip plane"
+    # (Away from the rim, where the cap's and the surface's normals blend within a cell.)
+    on_cap = (np.abs(vertices[:, 2] - 11.5) < 1e-4) & (np.hypot(vertices[:, 0] - 11.5, vertices[:, 1] - 11.5) < 6)
+    assert on_cap.sum() > 50 and np.all(colors[on_cap] == [1, 0, 0]) and np.all(normals[on_cap, 2] > 0.99)
+    assert np.all(colors[vertices[:, 2] < 10] == [0, 0, 1])
+    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    _, uses = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(uses == 2), "closed"
+    assert len(isotrace.mesh(scene)) == 3
