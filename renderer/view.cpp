@@ -23,6 +23,7 @@
 
 #include "renderer/render.h"
 #include "renderer/view_page.h"
+#include "scene/time_series.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
 
@@ -177,6 +178,9 @@ class ViewSession {
   std::vector<Surface> m_surfaces;
   std::vector<Slice> m_slices;
   AxisClip m_axisClips[3];
+  // Volumes that change over time: the time step shown (of the longest series' m_timeSteps; the
+  // others stretched over it as a sequence's frames are), set on every parse of the scene.
+  int m_timeSteps = 1, m_timeStep = 0;
   bool m_axisClipsShown = false;  // the scene has volumes: the view offers them
   std::vector<Json> m_fileClips;  // each volume's own "clip" entries in the file (arrays; they stay)
 
@@ -208,6 +212,7 @@ ViewSession::ViewSession(const std::string& path, const ViewOptions& options) : 
   m_doc = Json::parse(text, nullptr, false);
   m_desc = parseSceneText(text, path);  // the parser's own message for any problem
   if (m_doc.is_discarded() || !m_doc.is_object()) throw InputError(path, "", "expected a JSON object");
+  m_timeSteps = sceneTimeSteps(m_desc);
   m_firstWorld = std::make_unique<World>(m_desc, m_desc.settings.intersector);
   for (const std::string& w : m_firstWorld->warnings()) std::fprintf(stderr, "isotrace: warning: %s\n", w.c_str());
   for (size_t v = 0; v < m_desc.volumes.size(); ++v) {
@@ -254,7 +259,11 @@ void ViewSession::quit() {
   if (m_thread.joinable()) m_thread.join();
 }
 
-SceneDesc ViewSession::parse(const Json& doc) const { return parseSceneText(doc.dump(), m_path); }
+SceneDesc ViewSession::parse(const Json& doc) const {
+  SceneDesc desc = parseSceneText(doc.dump(), m_path);
+  for (VolumeDesc& v : desc.volumes) selectTimeStep(v, timeStepOfFrame(m_timeStep, m_timeSteps, v.time.steps));
+  return desc;
+}
 
 Vec3d ViewSession::colourOf(const Surface& s) const {
   const IsoSurfaceDesc& iso = m_desc.volumes[size_t(s.volume)].isosurfaces[size_t(s.index)];
@@ -306,6 +315,7 @@ std::string ViewSession::stateJson() {
       s["clip"].push_back({{"axis", std::string(1, "xyz"[a])}, {"on", c.on}, {"flip", c.flip}, {"position", c.position},
                            {"min", c.min}, {"max", c.max}});
     }
+  if (m_timeSteps > 1) s["time"] = {{"step", m_timeStep}, {"steps", m_timeSteps}};
   s["error"] = m_error;
   return s.dump();
 }
@@ -320,10 +330,20 @@ void ViewSession::apply(const std::string& body) {
   bool rebuild = false;
   for (const auto& [key, value] : change.items()) {
     if (key != "surface" && key != "value" && key != "color" && key != "color_by" && key != "slice" &&
-        key != "position" && key != "integrator" && key != "camera" && key != "clip" && key != "denoise")
+        key != "position" && key != "integrator" && key != "camera" && key != "clip" && key != "denoise" && key != "time")
       throw InputError(where, "/" + key,
                        "unknown key (known: surface, value, color, color_by, slice, position, clip, integrator, camera, "
-                       "denoise)");
+                       "denoise, time)");
+  }
+  const int timeStepBefore = m_timeStep;
+  if (change.contains("time")) {
+    // {"time": K}: show time step K of the scene's volumes that change over time.
+    const Json& t = change["time"];
+    if (m_timeSteps < 2) throw InputError(where, "/time", "no volume of the scene changes over time");
+    if (!t.is_number_integer() || t.get<long long>() < 0 || t.get<long long>() >= m_timeSteps)
+      throw InputError(where, "/time", "expected a time step from 0 to " + std::to_string(m_timeSteps - 1));
+    m_timeStep = int(t.get<long long>());
+    rebuild = true;
   }
   AxisClip axisClips[3] = {m_axisClips[0], m_axisClips[1], m_axisClips[2]};
   if (change.contains("clip")) {
@@ -471,6 +491,7 @@ void ViewSession::apply(const std::string& body) {
   try {
     desc = parse(doc);
   } catch (const InputError& e) {
+    m_timeStep = timeStepBefore;
     // The parser names the scene file; the request is what was wrong.
     std::string msg = e.what();
     const std::string prefix = m_path + ": ";
@@ -542,7 +563,8 @@ void ViewSession::run() {
       // Everything about the frame starts over; iso values and colours need a new World.
       if (rebuild || !world) {
         try {
-          // The volumes stay loaded: a change never alters how they load, only their surfaces.
+          // The volumes stay loaded: a change alters only their surfaces, or which time step
+          // of a series is shown (only that volume is read, each other one kept: World's sources).
           world = std::make_unique<World>(desc, desc.settings.intersector, world.get());
         } catch (const std::exception& e) {
           std::lock_guard<std::mutex> lock(m_mutex);

@@ -4,7 +4,7 @@
 // iso-surface (for one coloured by data: a map select, class "map", and its range, class "lo" and
 // "hi", instead of the colour), one range input (class "slice") per slice plane, a clip plane of
 // the volumes per axis (checkboxes of class "clip-on" and "clip-flip", a range input of class
-// "clip"), the integrator
+// "clip"), a time slider (#time-step, class "time") when a volume changes over time, the integrator
 // (#integrator), Save (#save); the image (#view) takes orbit
 // (drag), pan (shift-drag or right-drag) and zoom (wheel). Frames come as server-sent events.
 
@@ -35,6 +35,7 @@ inline constexpr const char* kViewPage = R"HTML(<!doctype html>
   <div><b>isotrace view</b> <span id="scene"></span></div>
   <label>integrator <select id="integrator"></select></label>
   <label><input type="checkbox" id="denoise"> denoise</label>
+  <div id="time"></div>
   <div id="surfaces"></div>
   <div id="slices"></div>
   <div id="clips"></div>
@@ -141,6 +142,26 @@ function showState(s) {
       }
       box.append(div);
     }
+  }
+  const time = $("time");
+  if (s.time && !time.children.length) {  // volumes that change over time: one step at a time
+    const label = document.createElement("label");
+    const range = slider("time", 0, s.time.steps - 1, s.time.steps - 1, "time step");
+    range.id = "time-step";
+    range.step = 1;
+    const shown = document.createElement("span");
+    shown.className = "value";
+    label.append("time step ", shown, " of " + s.time.steps);
+    range.addEventListener("input", () => {
+      shown.textContent = range.value;
+      send("time", {time: Number(range.value)});
+    });
+    time.append(label, range);
+  }
+  if (s.time) {
+    const range = $("time-step");
+    if (document.activeElement !== range) range.value = s.time.step;
+    time.querySelector(".value").textContent = range.value;
   }
   const slices = $("slices");
   if (slices.children.length !== s.slices.length) {

@@ -221,6 +221,45 @@ TEST(View, AxisClipPlanesChangeTheScene) {
   EXPECT_EQ(state(c)["version"], off["version"]) << "a refused change changes nothing";
 }
 
+// Volumes that change over time: a time slider's steps in the state, {"time": K} shows step K
+// (its own picture), and a bad step is refused.
+TEST(View, TheTimeStepChangesLive) {
+  const std::string dir = test::scratchDir();
+  for (int k = 0; k < 2; ++k) {
+    std::vector<float> v(16 * 16 * 16);
+    for (int z = 0; z < 16; ++z)
+      for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x)
+          v[size_t((z * 16 + y) * 16 + x)] = float((k == 0 ? 3 : 6) - std::sqrt((x - 7.5) * (x - 7.5) + (y - 7.5) * (y - 7.5) + (z - 7.5) * (z - 7.5)));
+    test::writeBytes(dir + "/b" + std::to_string(k) + ".raw", std::string(reinterpret_cast<const char*>(v.data()), v.size() * 4));
+  }
+  test::writeText(dir + "/s.json", R"({"camera": {"position": [7.5, 7.5, 40], "look_at": [7.5, 7.5, 7.5]}, "film": {"width": 16, "height": 12},
+    "integrator": {"type": "eyelight", "spp": 1},
+    "volumes": [{"file": ["b0.raw", "b1.raw"], "dims": [16, 16, 16], "type": "float32", "isosurfaces": [{"value": 0}]}]})");
+  Running view(dir + "/s.json", 16, 12);
+  httplib::Client c("127.0.0.1", view.port);
+  const Json s = state(c);
+  ASSERT_TRUE(s.contains("time")) << s.dump();
+  EXPECT_EQ(s["time"]["steps"], 2);
+  EXPECT_EQ(s["time"]["step"], 0);
+  const Json first = frameOf(view.port, s["version"], 1);
+  ASSERT_FALSE(first.is_null());
+  auto r = c.Post("/api/state", R"({"time": 1})", "application/json");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  const Json now = Json::parse(r->body);
+  EXPECT_EQ(now["time"]["step"], 1);
+  const Json second = frameOf(view.port, now["version"], 1);
+  ASSERT_FALSE(second.is_null());
+  EXPECT_NE(first["image"], second["image"]) << "a bigger ball at step 1";
+  for (const char* bad : {R"({"time": 2})", R"({"time": -1})", R"({"time": "1"})", R"({"time": 0.5})"}) {
+    auto b = c.Post("/api/state", bad, "application/json");
+    ASSERT_TRUE(b);
+    EXPECT_EQ(b->status, 400) << bad << ": " << b->body;
+  }
+  EXPECT_EQ(state(c)["time"]["step"], 1) << "a refused change changes nothing";
+}
+
 TEST(View, BadRequestsAre400AndChangeNothing) {
   const std::string dir = test::scratchDir();
   test::writeText(dir + "/s.json", test::mixedScene());
@@ -245,7 +284,8 @@ TEST(View, BadRequestsAre400AndChangeNothing) {
            {R"({"camera": {"position": [0, 1, 0], "look_at": [0, 1, 0]}})", "camera looks at its own position"},
            {R"({"camera": {"fov": 500}})", "/camera/fov"},
            {R"({"camera": {"position": [0, "a", 0]}})", "/camera/position"},
-           {R"({"camera": {"zoom": 2}})", "/camera/zoom: unknown key"}}) {
+           {R"({"camera": {"zoom": 2}})", "/camera/zoom: unknown key"},
+           {R"({"time": 0})", "/time: no volume of the scene changes over time"}}) {
     auto r = c.Post("/api/state", body, "application/json");
     ASSERT_TRUE(r) << body;
     EXPECT_EQ(r->status, 400) << body << ": " << r->body;
