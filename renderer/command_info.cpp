@@ -126,6 +126,10 @@ int info(const std::string& path, const SceneOverrides& overrides, int ranks) {
                 !drawn ? ", a data field (no iso-surface or slice: it colours others, is not drawn)"
                 : vi.transform.isIdentity() ? "" : ", transformed (Embree instance)");
     for (const std::string& note : vi.notes) std::printf("    %s\n", note.c_str());
+    if (const VolumeDesc::TimeSeries& t = scene.volumes[v].time; t.varying())
+      std::printf("    changes over time: %d steps (%s; step 0 described here); a sequence (render --frames, or "
+                  "one frame per step) steps through them\n",
+                  t.steps, !t.files.empty() ? "a file each" : !t.arrays.empty() ? "an array each" : "the file's time axis");
     // Where the values lie, to choose iso values by: the range and a few quantiles.
     const std::vector<double> shares{0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99};
     const std::vector<double> q = g.quantiles(shares);

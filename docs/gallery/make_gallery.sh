@@ -39,6 +39,9 @@ render examples/ct_chest.json --resolution 320x240 --spp 128 -o $out/ct_chest.pn
 render examples/ct_head.json --resolution 320x240 --spp 128 -o $out/ct_head.png
 render examples/engine_volume.json --resolution 320x240 --spp 64 -o $out/engine_volume.png
 render examples/iso_lamp.json --resolution 320x240 --spp 128 --tonemap aces -o $out/iso_lamp.png
+# A volume that changes over time, as a video (and its first frame as a still).
+render examples/4d_mri.json --resolution 320x240 --spp 16 --frames 48 --orbit 90 --fps 12 -o $out/4d_mri.mp4
+render examples/4d_mri.json --resolution 320x240 --spp 16 --frames 1 -o $out/4d_mri.png
 
 # Smooth shading normals against the cell's own gradient: the CT head's skin, lit from the eye.
 variant examples/ct_head.json head_skin 's["volumes"][0]["isosurfaces"] = [{"value": 500, "color": [0.9, 0.75, 0.65]}]; s["camera"] = {"position": [60, 20, 190], "look_at": [0, 0, 40], "fov": 35}'
