@@ -349,6 +349,48 @@ TEST(Mpi, DataParallelSequencesMatchOneProcess) {
   }
 }
 
+// A time series over ranks: frames dealt to ranks (each rank reads its own frames' steps), every
+// frame over all ranks with --data-parallel (each rank its part of each step), and a video
+// (each of its frames by tiles): the frames of one process, bit for bit.
+TEST(Mpi, TimeSeriesMatchOneProcess) {
+  const std::string dir = test::scratchDir();
+  std::string files;
+  for (int k = 0; k < 3; ++k) {
+    std::vector<float> v(20 * 20 * 20);
+    for (int z = 0; z < 20; ++z)
+      for (int y = 0; y < 20; ++y)
+        for (int x = 0; x < 20; ++x)
+          v[size_t((z * 20 + y) * 20 + x)] = float(4 + 2 * k - std::sqrt((x - 9.5) * (x - 9.5) + (y - 9.5) * (y - 9.5) + (z - 9.5) * (z - 9.5)));
+    test::writeBytes(dir + "/b" + std::to_string(k) + ".raw", std::string(reinterpret_cast<const char*>(v.data()), v.size() * 4));
+    files += std::string(k ? ", " : "") + "\"b" + std::to_string(k) + ".raw\"";
+  }
+  test::writeText(dir + "/s.json", R"({"film": {"width": 32, "height": 24}, "integrator": {"type": "path", "spp": 2, "max_depth": 3},
+    "volumes": [{"file": [)" + files + R"(], "dims": [20, 20, 20], "type": "float32", "isosurfaces": [{"value": 0}]}],
+    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}]})");
+  const auto one = runIsotrace("render " + dir + "/s.json --quiet --threads 2 -o " + dir + "/one.exr");
+  ASSERT_EQ(one.status, 0) << one.err;
+  for (const std::string& flags : {std::string(""), std::string("--data-parallel")}) {
+    SCOPED_TRACE(flags);
+    const auto two = runCommand(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --quiet --threads 1 " + flags +
+                                " -o " + dir + "/two.exr");
+    ASSERT_EQ(two.status, 0) << two.err;
+    for (const char* frame : {"0000", "0001", "0002"}) {
+      const std::vector<float> a = readExr(dir + "/one." + frame + ".exr");
+      ASSERT_FALSE(a.empty());
+      EXPECT_EQ(readExr(dir + "/two." + frame + ".exr"), a) << frame;
+    }
+  }
+  const auto video = runCommand(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/s.json --quiet -o " + dir + "/v.mp4 --keep-frames");
+  ASSERT_EQ(video.status, 0) << video.err;
+  ASSERT_EQ(runIsotrace("render " + dir + "/s.json --quiet -o " + dir + "/one.png").status, 0);
+  for (const char* frame : {"0000", "0001", "0002"}) {
+    const std::vector<float> png = readExr(dir + "/one." + std::string(frame) + ".png");
+    ASSERT_EQ(png.size(), size_t(32 * 24 * 3)) << frame;
+    EXPECT_EQ(readExr(dir + "/v." + std::string(frame) + ".png"), png) << frame;
+  }
+  EXPECT_TRUE(fs::exists(dir + "/v.mp4"));
+}
+
 // `isotrace watertight --data-parallel` under mpirun: each rank holds only its part of the volume
 // and every query is the closest of the ranks' answers, exchanged between the processes. The
 // counts are those of the same split in one process (`--ranks N`, tests/data_parallel_test.cpp),
