@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
+#include <map>
+#include <mutex>
 #include <sstream>
 
 #include "volume/input_error.h"
@@ -48,6 +50,38 @@ std::string stepName(const VolumeDesc& v, int step) {
 std::string shapeText(const Vec3i& d, ScalarType t) {
   return std::to_string(d.x) + "x" + std::to_string(d.y) + "x" + std::to_string(d.z) + " " + scalarTypeName(t);
 }
+
+// What a file's header says (its time points, or its shape), remembered by the file's name, size
+// and modification time: a scene is parsed again on every change in `isotrace view` and every
+// frame from Python, and a NIfTI header is read in a child process (about a millisecond each).
+template <typename T, typename Read>
+T rememberedOfFile(const std::string& file, const std::string& how, Read read) {
+  static std::mutex mutex;
+  static std::map<std::string, T> known;
+  std::error_code ec;
+  const auto size = fs::file_size(file, ec);
+  const auto time = fs::last_write_time(file, ec).time_since_epoch().count();
+  const std::string key = file + '\n' + how + '\n' + std::to_string(size) + '\n' + std::to_string(time);
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (auto it = known.find(key); !ec && it != known.end()) return it->second;
+  }
+  T value = read();
+  std::lock_guard<std::mutex> lock(mutex);
+  if (!ec && known.size() < 100000) known[key] = value;
+  return value;
+}
+
+int timePointsOf(const std::string& file) {
+  return rememberedOfFile<int>(file, "time points", [&] { return volumeTimePoints(file); });
+}
+
+std::optional<VolumeShape> shapeOf(const VolumeDesc& v, const std::string& file) {
+  std::string how = "shape " + std::to_string(v.part.time) + (v.layout.bigEndian ? " big" : "");
+  if (v.layout.dims) how += " " + shapeText(*v.layout.dims, ScalarType::UInt8);
+  if (v.layout.type) how += std::string(" ") + scalarTypeName(*v.layout.type);
+  return rememberedOfFile<std::optional<VolumeShape>>(file, how, [&] { return volumeFileShape(file, v.layout, v.part); });
+}
 }  // namespace
 
 bool isFilePattern(const std::string& file) {
@@ -83,7 +117,7 @@ void resolveTimeSeries(SceneDesc& scene) {
   for (VolumeDesc& v : scene.volumes) {
     VolumeDesc::TimeSeries& t = v.time;
     if (t.fileAxis) {
-      t.steps = volumeTimePoints(v.file);
+      t.steps = timePointsOf(v.file);
       if (t.steps < 2)
         throw InputError(scene.path, t.where, "\"time\": \"all\", but '" + v.file + "' has " +
                                                   (t.steps == 1 ? "one time step" : "no time axis") + ": nothing to step through");
@@ -99,10 +133,10 @@ void resolveTimeSeries(SceneDesc& scene) {
                                                   ": '" + t.files[k] + "' does not exist");
     }
     // Shapes and types from the headers where they are cheap to read.
-    const std::optional<VolumeShape> first = volumeFileShape(t.files[0], v.layout, v.part);
+    const std::optional<VolumeShape> first = shapeOf(v, t.files[0]);
     if (!first) continue;
     for (size_t k = 1; k < t.files.size(); ++k) {
-      const std::optional<VolumeShape> s = volumeFileShape(t.files[k], v.layout, v.part);
+      const std::optional<VolumeShape> s = shapeOf(v, t.files[k]);
       if (s && (!(s->dims == first->dims) || s->type != first->type))
         throw InputError(scene.path, t.where, "time step " + std::to_string(k) + " ('" + t.files[k] + "') is " +
                                                   shapeText(s->dims, s->type) + ", step 0 ('" + t.files[0] + "') " +
