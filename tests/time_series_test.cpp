@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -239,6 +240,23 @@ TEST(Video, HoldsTheSequencesFramesInOrder) {
   ASSERT_EQ(webm.status, 0) << webm.err;
   EXPECT_EQ(test::runCommand("ffprobe -v error -count_frames -show_entries stream=codec_name,nb_read_frames -of compact " + dir + "/v.webm").out,
             "stream|codec_name=vp9|nb_read_frames=3\n");
+}
+
+// Ctrl-C during a video's first frame: that frame is finished from the samples done and the video
+// ends with it (status 130), no temporary file left. The frame is long by its work (a million
+// samples per pixel); the signal goes once isotrace says the frame has begun.
+TEST(Video, AnInterruptedSequenceEndsItsVideoWithTheFrameInProgress) {
+  const std::string dir = test::scratchDir();
+  for (int k = 0; k < 2; ++k) writeBall(dir + "/b" + std::to_string(k) + ".raw", 20, 5 + k);
+  test::writeText(dir + "/s.json", ballScene("[" + q(dir + "/b0.raw") + ", " + q(dir + "/b1.raw") + "]"));
+  test::Process render(std::string(ISOTRACE_BINARY) + " render " + dir + "/s.json --integrator path --spp 1000000 -o " +
+                       dir + "/v.mp4 >" + dir + "/out.txt");
+  ASSERT_TRUE(render.waitForErr("(frame 1 of 2)")) << render.err();
+  render.signal(SIGINT);
+  EXPECT_EQ(render.wait(), 130) << render.err();
+  EXPECT_EQ(test::runCommand("ffprobe -v error -count_frames -show_entries stream=nb_read_frames -of csv=p=0 " + dir + "/v.mp4").out, "1\n");
+  for (const auto& entry : fs::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename().string().find(".partial"), std::string::npos) << entry.path();
 }
 
 // Bad video requests: one line, status 2, and no video (nor a temporary file) left behind.
