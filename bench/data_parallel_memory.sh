@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# bench/data_parallel_memory.sh [N] [RANKS] [nrrd|nifti|vdb]: what a data-parallel render saves in memory. An
+# bench/data_parallel_memory.sh [N] [RANKS] [nrrd|nifti|vdb|dicom]: what a data-parallel render saves in memory. An
 # N^3 float32 procedural volume (gyroid_ball; N = 1024: 4 GiB) — or with `nrrd`, an N^3 uint16
 # gyroid written as a NRRD of one file per slice (N = 1024: 2 GiB; python3-numpy), with `nifti` as
 # one NIfTI-1 file of int16 samples scaled by scl_slope (2 GiB in the file, float32 in memory: 4 GiB;
 # python3-nibabel), with `vdb` as an OpenVDB fog volume with every voxel active (float32; written by
-# build/bench/make_vdb_sphere --gyroid) — rendered by one process and by
+# build/bench/make_vdb_sphere --gyroid), with `dicom` as one multi-frame DICOM file of uint16 samples
+# (uncompressed; python3-pydicom writes it; GDCM reads it in a child process) — rendered by one process and by
 # RANKS ranks with --data-parallel (mpirun, oversubscribed if the machine has fewer cores); prints
 # each process's peak resident memory (GNU time), the process's own base (the same render of an
 # 8^3 volume), each rank's share of the single process's peak beyond that base, and whether the
@@ -17,8 +18,8 @@ ranks=${2:-4}
 kind=${3:-procedural}
 [[ "$n" =~ ^[0-9]+$ && "$ranks" =~ ^[0-9]+$ && "$n" -ge 16 && "$ranks" -ge 2 ]] ||
   { echo "data_parallel_memory: expected N >= 16 and RANKS >= 2" >&2; exit 2; }
-[[ "$kind" == procedural || "$kind" == nrrd || "$kind" == nifti || "$kind" == vdb ]] ||
-  { echo "data_parallel_memory: the third argument is 'nrrd', 'nifti', 'vdb' or nothing" >&2; exit 2; }
+[[ "$kind" == procedural || "$kind" == nrrd || "$kind" == nifti || "$kind" == vdb || "$kind" == dicom ]] ||
+  { echo "data_parallel_memory: the third argument is 'nrrd', 'nifti', 'vdb', 'dicom' or nothing" >&2; exit 2; }
 isotrace=${ISOTRACE:-build/isotrace}
 [ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 work=$(mktemp -d)
@@ -66,11 +67,56 @@ with open(folder + "/field.nii", "wb") as f:
         f.write(np.clip(v * 16000, -32768, 32767).astype("<i2").tobytes())
 PY
 }
+# An N^3 uint16 gyroid ball as one multi-frame DICOM file (Multi-frame Grayscale Word Secondary
+# Capture, explicit VR little endian), the surface at 32768.
+writeDicom() {  # RESOLUTION FOLDER
+  mkdir -p "$2"
+  /usr/bin/python3 - "$1" "$2" <<'PY'
+import sys, numpy as np
+from pydicom.dataset import Dataset, FileMetaDataset
+from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+n, folder = int(sys.argv[1]), sys.argv[2]
+c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
+y, x = np.meshgrid(c, c, indexing="ij")
+frames = []
+for k in range(n):
+    z = c[k]
+    s = 3 * np.pi
+    g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
+    v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)
+    frames.append(np.clip(32768 + v * 20000, 0, 65535).astype("<u2").tobytes())
+meta = FileMetaDataset()
+meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.7.3"
+meta.MediaStorageSOPInstanceUID = generate_uid()
+meta.TransferSyntaxUID = ExplicitVRLittleEndian
+ds = Dataset()
+ds.file_meta = meta
+ds.is_little_endian, ds.is_implicit_VR = True, False
+ds.SOPClassUID, ds.SOPInstanceUID = meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID
+ds.StudyInstanceUID, ds.SeriesInstanceUID = generate_uid(), generate_uid()
+ds.Modality = "OT"
+ds.Rows = ds.Columns = n
+ds.NumberOfFrames = n
+ds.SamplesPerPixel = 1
+ds.PhotometricInterpretation = "MONOCHROME2"
+ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
+ds.PixelSpacing = [1, 1]
+ds.SpacingBetweenSlices = 1
+ds.ImagePositionPatient = [0, 0, 0]
+ds.ImageOrientationPatient = [1, 0, 0, 0, 1, 0]
+ds.PixelData = b"".join(frames)
+ds.save_as(folder + "/field.dcm", write_like_original=False)
+PY
+}
 scene() {  # RESOLUTION
   if [ "$kind" = vdb ]; then
     [ -f "$work/f$1.vdb" ] || "$(dirname "$isotrace")/bench/make_vdb_sphere" --gyroid "$1" "$work/f$1.vdb" > /dev/null
     volume="\"file\": \"$work/f$1.vdb\""
     iso=0
+  elif [ "$kind" = dicom ]; then
+    [ -f "$work/f$1/field.dcm" ] || writeDicom "$1" "$work/f$1"
+    volume="\"file\": \"$work/f$1/field.dcm\""
+    iso=32768
   elif [ "$kind" = nifti ]; then
     [ -f "$work/f$1/field.nii" ] || writeNifti "$1" "$work/f$1"
     volume="\"file\": \"$work/f$1/field.nii\""
@@ -105,6 +151,8 @@ same=no
 oiiotool --fail 0 --failpercent 0 "$work/one.exr" "$work/many.exr" --diff > /dev/null 2>&1 && same=yes
 if [ "$kind" = vdb ]; then
   echo "volume ${n}^3 float32, an OpenVDB fog volume with every voxel active, $ranks ranks; peak resident memory, MiB:"
+elif [ "$kind" = dicom ]; then
+  echo "volume ${n}^3 uint16 held as float32, one multi-frame DICOM file ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
 elif [ "$kind" = nifti ]; then
   echo "volume ${n}^3 int16 scaled to float32, one NIfTI-1 file ($(( n * n * n * 2 / 1048576 )) MiB), $ranks ranks; peak resident memory, MiB:"
 elif [ "$kind" = nrrd ]; then

@@ -319,7 +319,8 @@ TEST(DicomFiles, SeriesProblemsAreNamed) {
 // A data-parallel rank's part of a DICOM volume (loadDicom's window, dicomBrickRanges through
 // fileBrickRanges): of a series only the slab's files are decoded (and the first slice's, which
 // places the volume); the window is the whole volume's, samples and placement, and the ranges
-// are the whole grid's. A multi-frame file is cut after decoding.
+// are the whole grid's. Of a multi-frame file only the window's box is decoded (GDCM's region
+// reader), and its ranges frame by frame.
 TEST(DicomFiles, WindowsDecodeOnlyTheirSlab) {
   gdcm::Trace::SetWarning(false);
   const std::string dir = test::scratchDir();
@@ -381,14 +382,24 @@ TEST(DicomFiles, WindowsDecodeOnlyTheirSlab) {
   EXPECT_EQ(fileBrickRanges(dir + "/s", {}, VolumePart{"1.2.3.4", ""})->dims(), (Vec3i{64, 64, 3}));
   test::expectRefusal<InputError>([&] { fileBrickRanges(dir + "/s"); }, dir + "/s", "holds 2 series");
 
-  // A multi-frame file: cut from the decoded whole.
-  const VolumeFile dose = readVolumeFile(kPydicom + "rtdose.dcm");
-  expectRanges(dose.grid, fileBrickRanges(kPydicom + "rtdose.dcm"));
-  const SampleWindow slab{{0, 0, 4}, {10, 10, 6}};
-  expectSame(dose, readVolumeFile(kPydicom + "rtdose.dcm", {}, {}, &slab), slab);
-  // A file on which GDCM aborts: one error, from the ranges' child process too.
+  // Multi-frame files, raw and RLE: a window is the whole volume's box, the ranges the whole's.
+  for (const char* name : {"rtdose.dcm", "rtdose_rle.dcm"}) {
+    SCOPED_TRACE(name);
+    const VolumeFile dose = readVolumeFile(kPydicom + name);
+    expectRanges(dose.grid, fileBrickRanges(kPydicom + name));
+    for (const SampleWindow& w : {SampleWindow{{0, 0, 4}, {10, 10, 6}}, SampleWindow{{2, 3, 0}, {5, 7, 15}}})
+      expectSame(dose, readVolumeFile(kPydicom + name, {}, {}, &w), w);
+  }
+  // A raw multi-frame file cut short: its window and ranges refused, naming it.
+  const std::string cut = dir + "/cut.dcm";
+  std::filesystem::copy_file(kPydicom + "rtdose.dcm", cut);
+  std::filesystem::resize_file(cut, std::filesystem::file_size(cut) - 2000);
+  const SampleWindow top{{0, 0, 9}, {10, 10, 6}};
+  test::expectRefusal<InputError>([&] { readVolumeFile(cut, {}, {}, &top); }, cut, "a truncated file");
+  test::expectRefusal<InputError>([&] { fileBrickRanges(cut); }, cut, "a truncated file");
+  // A file of one frame on whose pixels GDCM aborts: its header says enough (one line).
   test::expectRefusal<InputError>([&] { fileBrickRanges(kPydicom + "liver_1frame.dcm"); }, kPydicom + "liver_1frame.dcm",
-                                  "GDCM stopped reading it");
+                                  "holds a single slice");
 }
 
 // pydicom's RT dose: 15 frames of 10x10 uint32, scaled by DoseGridScaling 1e-6. Expected

@@ -5,7 +5,9 @@
 // folder's tags without reading pixel data; DCMTK needs separate codec set-up for each of those.
 // The only file that sees GDCM.
 #include <gdcmDirectory.h>
+#include <gdcmBoxRegion.h>
 #include <gdcmImageReader.h>
+#include <gdcmImageRegionReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTrace.h>
 
@@ -95,15 +97,14 @@ void decode(const std::string& file, Decoded& d) {
                                             gdcm::TransferSyntax::GetTSString(im.GetTransferSyntax()));
 }
 
-// Appends the decoded samples of `d`, rescaled, to `out` as float32; names the first voxel
-// whose value is not finite.
-void appendRescaled(const Decoded& d, const std::string& file, std::vector<float>& out) {
-  const gdcm::Image& im = d.image();
+// Appends decoded samples of `im` (`buffer`), rescaled, to `out` as float32; names the first
+// voxel whose value is not finite.
+void appendRescaled(const gdcm::Image& im, const std::vector<char>& buffer, const std::string& file, std::vector<float>& out) {
   const double slope = im.GetSlope(), intercept = im.GetIntercept();
   if (!std::isfinite(slope) || !std::isfinite(intercept) || slope == 0)
     throw InputError(file, "RescaleSlope", "rescale slope and intercept must be finite, the slope non-zero");
-  const size_t n = d.buffer.size() / std::max<size_t>(1, im.GetPixelFormat().GetPixelSize());
-  const char* p = d.buffer.data();
+  const size_t n = buffer.size() / std::max<size_t>(1, im.GetPixelFormat().GetPixelSize());
+  const char* p = buffer.data();
   auto put = [&](auto sample) {
     using T = decltype(sample);
     for (size_t i = 0; i < n; ++i) {
@@ -144,40 +145,117 @@ void placeDicom(const double position[3], const double orientation[6], double co
   out.notes.push_back("patient space (LPS, mm): " + describeAffine(a));
 }
 
-VolumeFile loadMultiFrame(const std::string& file) {
-  Decoded d;
-  decode(file, d);
-  const gdcm::Image& im = d.image();
-  const unsigned* dims = im.GetDimensions();
-  if (im.GetNumberOfDimensions() < 3 || dims[2] < 2)
-    throw InputError(file, "", "holds a single slice: a volume needs at least 2 (name the folder of its series)");
-  const Vec3i size{int(dims[0]), int(dims[1]), int(dims[2])};
-  if (size.x < 2 || size.y < 2) throw InputError(file, "Rows/Columns", "each dimension needs at least 2 samples");
-  std::vector<float> samples;
-  samples.reserve(size_t(size.x) * size.y * size.z);
-  appendRescaled(d, file, samples);
+// A multi-frame file's volume placed in patient space, and what its notes say of it.
+VolumeFile placeMultiFrame(const gdcm::Image& im, Grid grid, const std::string& file) {
   VolumeFile out;
   out.format = "DICOM";
-  out.grid = Grid(size, std::move(samples));
+  out.grid = std::move(grid);
   const double* o = im.GetOrigin();
   const double* dc = im.GetDirectionCosines();
   const double* s = im.GetSpacing();
   const Vec3d normal = cross3(dc, dc + 3);
   placeDicom(o, dc, s[0], s[1], normal * s[2], out, file);
-  out.notes.push_back("multi-frame file, " + std::to_string(size.z) + " frames " + std::to_string(s[2]) +
+  out.notes.push_back("multi-frame file, " + std::to_string(out.grid.dims().z) + " frames " + std::to_string(s[2]) +
                       " mm apart; values rescaled to float32 (slope " + std::to_string(im.GetSlope()) + ", intercept " +
                       std::to_string(im.GetIntercept()) + ")");
   return out;
 }
 
-// A multi-frame file, or only `window` of it (decoded whole: GDCM decodes a file at once).
-VolumeFile multiFrameWindow(const std::string& file, const SampleWindow* window) {
-  VolumeFile f = loadMultiFrame(file);
-  if (window) {
-    checkWindow(*window, f.grid.dims(), file);
-    f.grid = windowOf(f.grid, window->first, window->extent);
+// A multi-frame file's size, checked: a volume of at least 2 samples on each axis.
+Vec3i multiFrameSize(const gdcm::Image& im, const std::string& file) {
+  const unsigned* dims = im.GetDimensions();
+  if (im.GetNumberOfDimensions() < 3 || dims[2] < 2)
+    throw InputError(file, "", "holds a single slice: a volume needs at least 2 (name the folder of its series)");
+  if (dims[0] > (1u << 20) || dims[1] > (1u << 20) || dims[2] > (1u << 20))
+    throw InputError(file, "Rows/Columns/NumberOfFrames", "more than 2^20 samples on an axis");
+  const Vec3i size{int(dims[0]), int(dims[1]), int(dims[2])};
+  if (size.x < 2 || size.y < 2) throw InputError(file, "Rows/Columns", "each dimension needs at least 2 samples");
+  return size;
+}
+
+VolumeFile loadMultiFrame(const std::string& file) {
+  Decoded d;
+  decode(file, d);
+  const Vec3i size = multiFrameSize(d.image(), file);
+  std::vector<float> samples;
+  samples.reserve(size_t(size.x) * size.y * size.z);
+  appendRescaled(d.image(), d.buffer, file, samples);
+  return placeMultiFrame(d.image(), Grid(size, std::move(samples)), file);
+}
+
+// A multi-frame file read a box of samples at a time (GDCM's ImageRegionReader: the raw, RLE and
+// JPEG syntaxes frame by frame), so that a rank's window or the bricks' ranges never decode the
+// whole file: the child process that reads holds the box, not the volume.
+class FrameRegions {
+ public:
+  explicit FrameRegions(const std::string& file) : m_file(file) {
+    m_reader.SetFileName(file.c_str());
+    if (!m_reader.ReadInformation()) throw InputError(file, "", "not a readable DICOM image (or its pixel data is missing)");
+    const gdcm::Image& im = image();
+    if (im.GetPixelFormat().GetSamplesPerPixel() != 1)
+      throw InputError(file, "SamplesPerPixel", "colour images are not supported (one sample per pixel)");
+    m_size = multiFrameSize(im, file);
+    // GDCM reads a file cut short without complaint: uncompressed samples must fit in the file.
+    const size_t pixel = std::max<size_t>(1, im.GetPixelFormat().GetPixelSize());
+    const uint64_t need = uint64_t(m_size.x) * uint64_t(m_size.y) * uint64_t(m_size.z) * pixel;
+    std::error_code ec;
+    const uint64_t have = fs::file_size(file, ec);
+    if (!ec && !im.GetTransferSyntax().IsEncapsulated() && have < need)
+      throw InputError(file, "PixelData", "the file is " + std::to_string(have) + " bytes, its " + std::to_string(need) +
+                                              " bytes of samples cannot be in it (a truncated file)");
   }
-  return f;
+  const gdcm::Image& image() const { return m_reader.GetImage(); }
+  Vec3i size() const { return m_size; }
+  // The samples of the box [first, first + extent), x fastest, rescaled to float32.
+  void read(const Vec3i& first, const Vec3i& extent, std::vector<float>& out) {
+    gdcm::BoxRegion box;
+    box.SetDomain(unsigned(first.x), unsigned(first.x + extent.x - 1), unsigned(first.y), unsigned(first.y + extent.y - 1),
+                  unsigned(first.z), unsigned(first.z + extent.z - 1));
+    m_reader.SetRegion(box);
+    const size_t bytes = m_reader.ComputeBufferLength();
+    const size_t pixel = std::max<size_t>(1, image().GetPixelFormat().GetPixelSize());
+    if (bytes != size_t(extent.x) * size_t(extent.y) * size_t(extent.z) * pixel)
+      throw InputError(m_file, "PixelData", "GDCM cannot read a box of it (" +
+                                                std::string(gdcm::TransferSyntax::GetTSString(image().GetTransferSyntax())) + ")");
+    m_buffer.resize(bytes);
+    if (!m_reader.ReadIntoBuffer(m_buffer.data(), bytes))
+      throw InputError(m_file, "PixelData", std::string("cannot decode frames ") + std::to_string(first.z) + " to " +
+                                                std::to_string(first.z + extent.z - 1) + " (transfer syntax " +
+                                                gdcm::TransferSyntax::GetTSString(image().GetTransferSyntax()) + ")");
+    out.clear();
+    appendRescaled(image(), m_buffer, m_file, out);
+  }
+
+ private:
+  std::string m_file;
+  gdcm::ImageRegionReader m_reader;
+  Vec3i m_size;
+  std::vector<char> m_buffer;
+};
+
+// A multi-frame file, or only `window` of it (only the window's box decoded).
+VolumeFile multiFrameWindow(const std::string& file, const SampleWindow* window) {
+  if (!window) return loadMultiFrame(file);
+  FrameRegions regions(file);
+  checkWindow(*window, regions.size(), file);
+  auto samples = std::make_shared<std::vector<float>>();
+  regions.read(window->first, window->extent, *samples);
+  Grid grid(regions.size(), ScalarType::Float32, std::shared_ptr<const void>(samples, samples->data()), window->first,
+            window->extent);
+  return placeMultiFrame(regions.image(), std::move(grid), file);
+}
+
+// A multi-frame file's brick ranges, a frame at a time.
+BrickGrid multiFrameBrickRanges(const std::string& file) {
+  FrameRegions regions(file);
+  const Vec3i n = regions.size();
+  std::vector<float> frame;
+  return BrickGrid::fromStream(n, [&](auto&& layerDone) {
+    for (int z = 0; z < n.z; ++z) {
+      regions.read({0, 0, z}, {n.x, n.y, 1}, frame);
+      layerDone(z, frame.data());
+    }
+  });
 }
 
 // A folder's series: its slices ordered along their normal, evenly spaced (checked), and the
@@ -303,7 +381,7 @@ void decodeSlice(const Series& series, size_t k, SeriesPixels& p, std::vector<fl
     throw InputError(file, "Rows/Columns", "differ from the series' first slice");
   }
   samples.clear();
-  appendRescaled(d, file, samples);
+  appendRescaled(d.image(), d.buffer, file, samples);
 }
 
 // The series' volume (its samples in `grid`, whole or a window) placed in patient space.
@@ -355,9 +433,9 @@ VolumeFile loadSeries(const std::string& folder, const std::string& wanted, cons
 // The brick ranges of a folder's series (or multi-frame file), its slices decoded one at a time.
 BrickGrid seriesBrickRanges(const std::string& path, const std::string& wanted) {
   std::error_code ec;
-  if (!fs::is_directory(path, ec)) return BrickGrid(loadMultiFrame(path).grid);
+  if (!fs::is_directory(path, ec)) return multiFrameBrickRanges(path);
   const Series series = scanSeries(path, wanted);
-  if (!series.multiFrame.empty()) return BrickGrid(loadMultiFrame(series.multiFrame).grid);
+  if (!series.multiFrame.empty()) return multiFrameBrickRanges(series.multiFrame);
   SeriesPixels p;
   std::vector<float> slice;
   decodeSlice(series, 0, p, slice);

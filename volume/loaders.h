@@ -86,7 +86,8 @@ const char* volumeExtensions();
 // DICOM (volume/dicom.cpp, GDCM): a folder is one series of single-frame slices (`series`
 // chooses when it holds several), a file one multi-frame volume. With `window`, only those
 // samples come back: of a series only the slab's files are decoded (and the first slice's, which
-// places the volume); a multi-frame file is decoded whole in the reader's child process.
+// places the volume); of a multi-frame file only the window's box (GDCM's region reader), in
+// the reader's child process; its brick ranges a frame at a time.
 VolumeFile loadDicom(const std::string& path, const std::string& series = "", const SampleWindow* window = nullptr);
 // A DICOM volume's brick ranges, its slices decoded one at a time (in a child process).
 BrickGrid dicomBrickRanges(const std::string& path, const std::string& series = "");
