@@ -717,8 +717,9 @@ py::dict bench(const std::string& text, const std::string& path, const std::vect
 }
 
 py::tuple mesh(const std::string& text, const std::string& path, const std::vector<std::shared_ptr<const Grid>>& grids,
-               int volume, int surface, const std::string& output) {
-  const SceneDesc scene = parseScene(text, path, grids);
+               int volume, int surface, const std::string& output, int time) {
+  SceneDesc scene = parseScene(text, path, grids);
+  selectMeshTimeStep(scene, time, "isotrace.mesh: time");
   if (!output.empty()) {
     const std::string ext = std::filesystem::path(output).extension().string();
     if (ext != ".glb" && ext != ".gltf") throw InputError(output, "", "the mesh output must be .glb or .gltf");
@@ -813,7 +814,7 @@ PYBIND11_MODULE(_core, m) {
     return bench(text, path, gridsOf(grids), rays, intersectors, seed, rayFlow);
   });
   m.def("mesh", [gridsOf](const std::string& text, const std::string& path, const std::vector<ArrayGrid>& grids, int volume,
-                          int surface, const std::string& output) {
-    return mesh(text, path, gridsOf(grids), volume, surface, output);
+                          int surface, const std::string& output, int time) {
+    return mesh(text, path, gridsOf(grids), volume, surface, output, time);
   });
 }

@@ -41,7 +41,7 @@ const char* lightKindName(Light::Kind k) {
 // what the rank would hold of it.
 void printPartition(const World& world, const std::string& path, int ranks) {
   std::printf("  data-parallel over %d ranks (render --data-parallel): each holds only its box of each volume "
-              "(files and procedural fields are read only for it; a DICOM multi-frame or OpenVDB file whole in its reader process, ASCII data whole, then cut); meshes, lights "
+              "(files and procedural fields are read only for it, OpenVDB and multi-frame DICOM files too; ASCII data whole, then cut); meshes, lights "
               "and the camera on every rank\n", ranks);
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];

@@ -10,6 +10,7 @@
 #include "renderer/commands.h"
 #include "scene/gltf.h"
 #include "scene/texture.h"
+#include "scene/time_series.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
 #include "volume/clip.h"
@@ -20,7 +21,7 @@ namespace {
 
 struct MeshFlags {
   std::string scene, output;
-  int volume = 0, surface = 0;
+  int volume = 0, surface = 0, time = 0;
   SceneOverrides overrides;
 };
 
@@ -72,6 +73,14 @@ Grid clippedGrid(const Grid& grid, const ClippedField& c) {
 }
 
 }  // namespace
+
+void selectMeshTimeStep(SceneDesc& scene, int step, const std::string& flag) {
+  const int steps = sceneTimeSteps(scene);
+  if (step < 0 || step >= steps)
+    throw InputError(flag, "", steps == 1 ? "no volume of the scene changes over time (only step 0)"
+                                          : "expected a time step from 0 to " + std::to_string(steps - 1));
+  for (VolumeDesc& v : scene.volumes) selectTimeStep(v, timeStepOfFrame(step, steps, v.time.steps));
+}
 
 GltfMeshOut surfaceMesh(const SceneDesc& scene, int volumeIndex, int surfaceIndex, const std::string& volumeFlag,
                         const std::string& surfaceFlag) {
@@ -179,7 +188,8 @@ namespace {
 
 // `isotrace mesh`: one iso-surface as triangles in world space, with the surface's material.
 int exportMesh(const MeshFlags& flags) {
-  const SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
+  SceneDesc scene = parseSceneFile(flags.scene, flags.overrides);
+  selectMeshTimeStep(scene, flags.time, "--time");
   if (flags.output.empty()) throw InputError("-o", "", "an output file is needed (-o NAME.glb or NAME.gltf)");
   const std::string ext = std::filesystem::path(flags.output).extension().string();
   if (ext != ".glb" && ext != ".gltf") throw InputError(flags.output, "", "the mesh output must be .glb or .gltf");
@@ -201,6 +211,7 @@ Command addMeshCommand(CLI::App& app) {
   cmd->add_option("-o,--output", f.output, "output mesh, .glb or .gltf")->required();
   cmd->add_option("--volume", f.volume, "volume index in the scene, from 0 (default 0)");
   cmd->add_option("--surface", f.surface, "iso-surface index in that volume, from 0 (default 0)");
+  cmd->add_option("--time", f.time, "the time step of volumes that change over time, from 0 (default 0)");
   addSceneOverrides(cmd, f.overrides);
   return {cmd, [flags] { return exportMesh(*flags); }};
 }

@@ -57,6 +57,9 @@ std::string jsonString(const std::string& s);
 // "color_by" ("cap_color_by" on the caps) becomes vertex colours (the material's colour then
 // white). An index out of range is an InputError naming `volumeFlag` / `surfaceFlag`; so is an
 // iso value that gives no surface.
+// Sets a scene's time series to step `step` of the longest (the others stretched over it, as a
+// sequence's frames are) for `isotrace mesh --time`; an InputError naming `flag` out of range.
+void selectMeshTimeStep(SceneDesc& scene, int step, const std::string& flag);
 GltfMeshOut surfaceMesh(const SceneDesc& scene, int volumeIndex, int surfaceIndex, const std::string& volumeFlag,
                         const std::string& surfaceFlag);
 

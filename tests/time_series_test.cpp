@@ -79,6 +79,23 @@ TEST(TimeSeries, EachFrameIsTheSingleRenderOfItsStep) {
   EXPECT_EQ(readExr(dir + "/still.exr"), singles[0]);
 }
 
+// `isotrace mesh --time K`: the surface of step K; a step out of range is bad input.
+TEST(TimeSeries, MeshOfATimeStep) {
+  const std::string dir = test::scratchDir();
+  writeBall(dir + "/a.raw", 20, 4);
+  writeBall(dir + "/b.raw", 20, 8);
+  test::writeText(dir + "/s.json", ballScene("[" + q(dir + "/a.raw") + ", " + q(dir + "/b.raw") + "]"));
+  for (int t = 0; t < 2; ++t) {
+    const auto r = runIsotrace("mesh " + dir + "/s.json --time " + std::to_string(t) + " -o " + dir + "/m" + std::to_string(t) + ".glb");
+    ASSERT_EQ(r.status, 0) << r.err;
+  }
+  EXPECT_LT(fs::file_size(dir + "/m0.glb") * 2, fs::file_size(dir + "/m1.glb")) << "the bigger ball of step 1";
+  const auto bad = runIsotrace("mesh " + dir + "/s.json --time 2 -o " + dir + "/m2.glb");
+  EXPECT_EQ(bad.status, 2);
+  EXPECT_NE(bad.err.find("--time: expected a time step from 0 to 1"), std::string::npos) << bad.err;
+  EXPECT_FALSE(fs::exists(dir + "/m2.glb"));
+}
+
 TEST(TimeSeries, APatternMatchesInNaturalOrder) {
   const std::string dir = test::scratchDir();
   writeBall(dir + "/t_2.raw", 20, 5);

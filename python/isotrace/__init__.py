@@ -509,15 +509,16 @@ def bench(scene, rays=10000, intersectors=None, seed=1, ray_flow=None):
     return _core.bench(s._text(), s.path, s._grids(), int(rays), list(intersectors or []), int(seed), ray_flow or "")
 
 
-def mesh(scene, volume=0, surface=0, path=None, colors=False):
+def mesh(scene, volume=0, surface=0, path=None, colors=False, time=0):
     """Iso-surface `surface` of volume `volume` as triangles in world space (``isotrace mesh``):
     (vertices float32 N x 3, triangles uint32 M x 3, normals float32 N x 3, out of the solid);
     also written as glTF (.glb / .gltf) if `path` is given. The scene's and the volume's "clip"
     cut it as the render does, capped (a closed surface stays closed). colors=True adds a fourth
     item: the vertices' linear RGB (N x 3) from "color_by" ("cap_color_by" on the caps), or None
-    when the surface is not coloured by data."""
+    when the surface is not coloured by data. time: the time step of volumes that change over time."""
     s = _as_scene(scene)
-    v, t, n, c = _core.mesh(s._text(), s.path, s._grids(), int(volume), int(surface), os.fspath(path) if path else "")
+    v, t, n, c = _core.mesh(s._text(), s.path, s._grids(), int(volume), int(surface), os.fspath(path) if path else "",
+                            int(time))
     return (v, t, n, c) if colors else (v, t, n)
 
 

@@ -170,6 +170,9 @@ def test_mpirun_renders_one_frame_over_the_ranks_bit_for_bit(tmp_path):
         f = isotrace.render(s, spp=4, resolution=(48, 36), integrator="path", progress=lambda a, b: None)
         print(isotrace.mpi_rank(), isotrace.mpi_size(), f.rank, f.ranks, f.rgb is None)
         f.save(sys.argv[1])
+        # A sequence: each frame over the ranks too.
+        for frame in isotrace.render_sequence(s, frames=2, orbit=30, spp=2, resolution=(32, 24), progress=lambda a, b: None):
+            frame.save(sys.argv[1] + ".%d.exr" % frame.index)
     """))
     env = dict(os.environ, OMPI_MCA_btl_vader_single_copy_mechanism="none")
     one = subprocess.run([sys.executable, str(script), str(tmp_path / "one.exr")], capture_output=True, text=True, env=env)
@@ -181,6 +184,9 @@ def test_mpirun_renders_one_frame_over_the_ranks_bit_for_bit(tmp_path):
     assert sorted(two.stdout.split("\n")[:2]) == ["0 2 0 2 False", "1 2 1 2 True"], two.stdout
     a, b = isotrace.read_image(tmp_path / "one.exr"), isotrace.read_image(tmp_path / "two.exr")
     assert a.max() > 0.05 and np.array_equal(a, b)
+    for k in range(2):
+        assert np.array_equal(isotrace.read_image(tmp_path / ("one.exr.%d.exr" % k)),
+                              isotrace.read_image(tmp_path / ("two.exr.%d.exr" % k))), "sequence frame %d" % k
 
 
 def test_mesh_is_clipped_capped_and_coloured():
@@ -199,3 +205,11 @@ def test_mesh_is_clipped_capped_and_coloured():
     _, uses = np.unique(edges, axis=0, return_counts=True)
     assert np.all(uses == 2), "closed"
     assert len(isotrace.mesh(scene)) == 3
+
+
+def test_mesh_of_a_time_step():
+    scene = scene_of(isotrace.Volume(balls([4, 8])))
+    small, large = (isotrace.mesh(scene, time=t)[0] for t in (0, 1))
+    assert np.abs(small - 11.5).max() < 5 < np.abs(large - 11.5).max() < 9
+    with pytest.raises(isotrace.InputError, match="isotrace.mesh: time: expected a time step from 0 to 1"):
+        isotrace.mesh(scene, time=2)
