@@ -54,33 +54,79 @@ std::string shapeText(const Vec3i& d, ScalarType t) {
 // What a file's header says (its time points, or its shape), remembered by the file's name, size
 // and modification time: a scene is parsed again on every change in `isotrace view` and every
 // frame from Python, and a NIfTI header is read in a child process (about a millisecond each).
-template <typename T, typename Read>
-T rememberedOfFile(const std::string& file, const std::string& how, Read read) {
-  static std::mutex mutex;
-  static std::map<std::string, T> known;
-  std::error_code ec;
-  const auto size = fs::file_size(file, ec);
-  const auto time = fs::last_write_time(file, ec).time_since_epoch().count();
-  const std::string key = file + '\n' + how + '\n' + std::to_string(size) + '\n' + std::to_string(time);
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    if (auto it = known.find(key); !ec && it != known.end()) return it->second;
+// What a file's header says (its time points, or its shape), remembered by the file's name, size
+// and modification time: a scene is parsed again on every change in `isotrace view` and every
+// frame from Python, and a NIfTI header is read in a child process (~17 ms a fork here).
+class HeaderMemory {
+ public:
+  template <typename T>
+  std::optional<T> find(const std::string& key) {
+    std::lock_guard<std::mutex> lock(m_mutex);
+    auto it = known<T>().find(key);
+    if (it == known<T>().end()) return std::nullopt;
+    return it->second;
   }
-  T value = read();
-  std::lock_guard<std::mutex> lock(mutex);
-  if (!ec && known.size() < 100000) known[key] = value;
-  return value;
+  template <typename T>
+  void keep(const std::string& key, const T& value) {
+    std::lock_guard<std::mutex> lock(m_mutex);
+    if (known<T>().size() < 100000) known<T>()[key] = value;
+  }
+
+ private:
+  template <typename T>
+  std::map<std::string, T>& known() {
+    static std::map<std::string, T> values;
+    return values;
+  }
+  std::mutex m_mutex;
+};
+HeaderMemory g_headers;
+
+// The key of what `how` asks of `file` now; empty when the file cannot be stat'ed (not remembered).
+std::string headerKey(const std::string& file, const std::string& how) {
+  std::error_code ec, ec2;
+  const auto size = fs::file_size(file, ec);
+  const auto time = fs::last_write_time(file, ec2).time_since_epoch().count();
+  if (ec || ec2) return "";
+  return file + '\n' + how + '\n' + std::to_string(size) + '\n' + std::to_string(time);
 }
 
 int timePointsOf(const std::string& file) {
-  return rememberedOfFile<int>(file, "time points", [&] { return volumeTimePoints(file); });
+  const std::string key = headerKey(file, "time points");
+  if (!key.empty())
+    if (const std::optional<int> known = g_headers.find<int>(key)) return *known;
+  const int points = volumeTimePoints(file);
+  if (!key.empty()) g_headers.keep(key, points);
+  return points;
 }
 
-std::optional<VolumeShape> shapeOf(const VolumeDesc& v, const std::string& file) {
+// The shapes of a series' files by their headers (nullopt: no cheap header), those not remembered
+// read together.
+std::vector<std::optional<VolumeShape>> shapesOf(const VolumeDesc& v, const std::vector<std::string>& files) {
   std::string how = "shape " + std::to_string(v.part.time) + (v.layout.bigEndian ? " big" : "");
   if (v.layout.dims) how += " " + shapeText(*v.layout.dims, ScalarType::UInt8);
   if (v.layout.type) how += std::string(" ") + scalarTypeName(*v.layout.type);
-  return rememberedOfFile<std::optional<VolumeShape>>(file, how, [&] { return volumeFileShape(file, v.layout, v.part); });
+  using Shape = std::optional<VolumeShape>;
+  std::vector<Shape> shapes(files.size());
+  std::vector<std::string> keys(files.size()), unknown;
+  std::vector<size_t> where;
+  for (size_t k = 0; k < files.size(); ++k) {
+    keys[k] = headerKey(files[k], how);
+    const std::optional<Shape> known = keys[k].empty() ? std::nullopt : g_headers.find<Shape>(keys[k]);
+    if (known) {
+      shapes[k] = *known;
+    } else {
+      unknown.push_back(files[k]);
+      where.push_back(k);
+    }
+  }
+  if (unknown.empty()) return shapes;
+  const std::vector<Shape> read = volumeFileShapes(unknown, v.layout, v.part);
+  for (size_t i = 0; i < where.size(); ++i) {
+    shapes[where[i]] = read[i];
+    if (!keys[where[i]].empty()) g_headers.keep(keys[where[i]], read[i]);
+  }
+  return shapes;
 }
 }  // namespace
 
@@ -132,11 +178,13 @@ void resolveTimeSeries(SceneDesc& scene) {
         throw InputError(scene.path, t.where, "time step " + std::to_string(k) + " of " + std::to_string(t.files.size()) +
                                                   ": '" + t.files[k] + "' does not exist");
     }
-    // Shapes and types from the headers where they are cheap to read.
-    const std::optional<VolumeShape> first = shapeOf(v, t.files[0]);
+    // Shapes and types from the headers where they are cheap to read (those not remembered read
+    // together: one child process for all NIfTI headers).
+    const std::vector<std::optional<VolumeShape>> shapes = shapesOf(v, t.files);
+    const std::optional<VolumeShape>& first = shapes[0];
     if (!first) continue;
     for (size_t k = 1; k < t.files.size(); ++k) {
-      const std::optional<VolumeShape> s = shapeOf(v, t.files[k]);
+      const std::optional<VolumeShape>& s = shapes[k];
       if (s && (!(s->dims == first->dims) || s->type != first->type))
         throw InputError(scene.path, t.where, "time step " + std::to_string(k) + " ('" + t.files[k] + "') is " +
                                                   shapeText(s->dims, s->type) + ", step 0 ('" + t.files[0] + "') " +

@@ -183,6 +183,22 @@ TEST(TimeSeries, BadSeriesAreRefusedBeforeAnyFrame) {
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_FALSE(fs::exists(dir + "/out.0000.png") || fs::exists(dir + "/out.png")) << c.message;
   }
+  // NIfTI steps, their headers read together (one child process): a step of another shape, and a
+  // step that is no NIfTI at all, named.
+  const std::string anatomical = "/usr/lib/python3/dist-packages/nibabel/tests/data/anatomical.nii";
+  for (int k = 0; k < 3; ++k) fs::copy_file(anatomical, dir + "/n" + std::to_string(k) + ".nii");
+  fs::copy_file(test::dataPath("volumes/example4d.nii.gz"), dir + "/n3.nii.gz");
+  test::writeBytes(dir + "/junk.nii", std::string(400, 'x'));
+  test::writeText(json, ballScene("[" + q(dir + "/n0.nii") + ", " + q(dir + "/n1.nii") + ", " + q(dir + "/n3.nii.gz") + "]", "", false));
+  auto nifti = runIsotrace("render " + json + " -o " + dir + "/out.png");
+  EXPECT_EQ(nifti.status, 2) << nifti.err;
+  EXPECT_NE(nifti.err.find("time step 2 ('" + dir + "/n3.nii.gz') is 128x96x24 int16, step 0"), std::string::npos) << nifti.err;
+  test::writeText(json, ballScene("[" + q(dir + "/n0.nii") + ", " + q(dir + "/junk.nii") + ", " + q(dir + "/n2.nii") + "]", "", false));
+  nifti = runIsotrace("render " + json + " -o " + dir + "/out.png");
+  EXPECT_EQ(nifti.status, 2) << nifti.err;
+  EXPECT_NE(nifti.err.find(dir + "/junk.nii"), std::string::npos) << nifti.err;
+  EXPECT_EQ(std::count(nifti.err.begin(), nifti.err.end(), '\n'), 1) << nifti.err;
+  EXPECT_FALSE(fs::exists(dir + "/out.0000.png"));
   // Steps of different shapes: named with their index, before any frame (the raw layout is the
   // scene's, so a file of another size is refused as its own; a NRRD header tells its shape).
   for (const auto& [name, dims] : std::vector<std::pair<std::string, std::string>>{{"n0.nrrd", "20 20 20"}, {"n1.nrrd", "18 18 18"}}) {

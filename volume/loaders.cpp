@@ -1,11 +1,14 @@
 #include "volume/loaders.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <regex>
 
 #include "volume/formats.h"
 #include "volume/input_error.h"
+#include "volume/input_file.h"
 
 namespace iso {
 
@@ -100,6 +103,59 @@ std::optional<VolumeShape> volumeFileShape(const std::string& path, const RawLay
   const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time);
   if (!runs) return std::nullopt;
   return VolumeShape{runs->dims, runs->type};
+}
+
+std::vector<std::optional<VolumeShape>> volumeFileShapes(const std::vector<std::string>& paths, const RawLayout& layout,
+                                                         const VolumePart& part) {
+  std::vector<std::optional<VolumeShape>> shapes(paths.size());
+  std::vector<size_t> nifti;
+  for (size_t k = 0; k < paths.size(); ++k)
+    if (isNiftiName(lower(fs::path(paths[k]).filename().string()))) nifti.push_back(k);
+  // The NIfTI headers, in one child: per file a length, then its packed layout ('L') or its
+  // error's message ('E').
+  std::string report;
+  if (nifti.size() > 1) {
+    try {
+      report = runInChildProcess(paths[nifti[0]], "libnifti", [&](int) {
+                 std::string all;
+                 for (size_t k : nifti) {
+                   std::string one;
+                   try {
+                     checkInputFile(paths[k], "file", false);
+                     one = "L" + packNiftiLayout(readNiftiLayout(paths[k]));
+                   } catch (const InputError& e) {
+                     one = std::string("E") + e.what();
+                   }
+                   const uint64_t n = one.size();
+                   all.append(reinterpret_cast<const char*>(&n), sizeof n);
+                   all += one;
+                 }
+                 return all;
+               }).report;
+    } catch (const InputError&) {
+      report.clear();  // the child died: each file alone below names the one that kills it
+    }
+  }
+  size_t at = 0;
+  for (size_t k = 0; k < paths.size(); ++k) {
+    const bool batched = !report.empty() && std::find(nifti.begin(), nifti.end(), k) != nifti.end();
+    if (!batched) {
+      shapes[k] = volumeFileShape(paths[k], layout, part);
+      continue;
+    }
+    uint64_t n = 0;
+    if (report.size() - at < sizeof n) throw InputError(paths[k], "", "libnifti's reader gave back a malformed header");
+    std::memcpy(&n, report.data() + at, sizeof n);
+    at += sizeof n;
+    if (n == 0 || report.size() - at < n) throw InputError(paths[k], "", "libnifti's reader gave back a malformed header");
+    const std::string one = report.substr(at, n);
+    at += n;
+    if (one[0] == 'E') throw InputError(one.substr(1));
+    NiftiLayout l = unpackNiftiLayout(one.substr(1), paths[k]);
+    timePointOffset(l, part.time, paths[k]);  // (a time point past the file's is an error)
+    shapes[k] = VolumeShape{l.dims, l.native};
+  }
+  return shapes;
 }
 
 int volumeTimePoints(const std::string& path) {

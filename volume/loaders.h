@@ -77,6 +77,11 @@ struct VolumeShape {
   ScalarType type = ScalarType::UInt8;
 };
 std::optional<VolumeShape> volumeFileShape(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
+// The same for many files (a time series' steps): the NIfTI headers among them read in one child
+// process (one fork, not one each; if that child dies, each is read alone, to name the culprit).
+// The first error, in the files' order, is thrown.
+std::vector<std::optional<VolumeShape>> volumeFileShapes(const std::vector<std::string>& paths, const RawLayout& layout = {},
+                                                         const VolumePart& part = {});
 // The time points of a volume file: a NIfTI's dim[4] (its header read in a child process; 0 when
 // it has no time axis), 0 for any other file. Errors as readVolumeFile's.
 int volumeTimePoints(const std::string& path);
