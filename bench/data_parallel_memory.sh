@@ -24,19 +24,31 @@ isotrace=${ISOTRACE:-build/isotrace}
 [ -x "$isotrace" ] || { echo "data_parallel_memory: build first (./run.sh or ./test.sh)" >&2; exit 2; }
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
+# The field the file kinds below write, slice by slice: a gyroid cut to a ball (its surface at 0),
+# sampled at cell centres over [-1, 1]^3.
+cat > "$work/gyroid_ball.py" <<'PY'
+import numpy as np
+
+
+def gyroid_ball(n):
+    """(k, values of slice k) for k in 0..n-1, float32 n x n (rows y, columns x)."""
+    c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
+    y, x = np.meshgrid(c, c, indexing="ij")
+    s = 3 * np.pi
+    for k in range(n):
+        z = c[k]
+        g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
+        yield k, np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)
+PY
 # An N^3 uint16 gyroid ball as a NRRD with one file per slice (the samples 0..65535, the surface at 32768).
 writeNrrd() {  # RESOLUTION FOLDER
   mkdir -p "$2"
-  /usr/bin/python3 - "$1" "$2" <<'PY'
+  /usr/bin/python3 - "$1" "$2" "$work" <<'PY'
 import sys, numpy as np
+sys.path.insert(0, sys.argv[3])
+from gyroid_ball import gyroid_ball
 n, folder = int(sys.argv[1]), sys.argv[2]
-c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
-y, x = np.meshgrid(c, c, indexing="ij")
-for k in range(n):
-    z = c[k]
-    s = 3 * np.pi
-    g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
-    v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)  # the gyroid cut to a ball
+for k, v in gyroid_ball(n):
     np.clip(32768 + v * 20000, 0, 65535).astype("<u2").tofile("%s/slice.%04d" % (folder, k))
 open(folder + "/field.nhdr", "w").write(
     "NRRD0004\ndimension: 3\ntype: ushort\nsizes: %d %d %d\nendian: little\nencoding: raw\n"
@@ -47,23 +59,19 @@ PY
 # (the surface at -100).
 writeNifti() {  # RESOLUTION FOLDER
   mkdir -p "$2"
-  /usr/bin/python3 - "$1" "$2" <<'PY'
+  /usr/bin/python3 - "$1" "$2" "$work" <<'PY'
 import sys, numpy as np, nibabel as nib
+sys.path.insert(0, sys.argv[3])
+from gyroid_ball import gyroid_ball
 n, folder = int(sys.argv[1]), sys.argv[2]
 h = nib.Nifti1Header()
 h.set_data_shape((n, n, n))
 h.set_data_dtype(np.int16)
 h.set_slope_inter(0.5, -100)
 h["vox_offset"] = 352
-c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
-y, x = np.meshgrid(c, c, indexing="ij")
 with open(folder + "/field.nii", "wb") as f:
     f.write(h.binaryblock + b"\0" * 4)
-    for k in range(n):
-        z = c[k]
-        s = 3 * np.pi
-        g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
-        v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)
+    for k, v in gyroid_ball(n):
         f.write(np.clip(v * 16000, -32768, 32767).astype("<i2").tobytes())
 PY
 }
@@ -71,20 +79,14 @@ PY
 # Capture, explicit VR little endian), the surface at 32768.
 writeDicom() {  # RESOLUTION FOLDER
   mkdir -p "$2"
-  /usr/bin/python3 - "$1" "$2" <<'PY'
+  /usr/bin/python3 - "$1" "$2" "$work" <<'PY'
 import sys, numpy as np
 from pydicom.dataset import Dataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+sys.path.insert(0, sys.argv[3])
+from gyroid_ball import gyroid_ball
 n, folder = int(sys.argv[1]), sys.argv[2]
-c = (np.arange(n, dtype=np.float32) + 0.5) / n * 2 - 1
-y, x = np.meshgrid(c, c, indexing="ij")
-frames = []
-for k in range(n):
-    z = c[k]
-    s = 3 * np.pi
-    g = np.sin(s * x) * np.cos(s * y) + np.sin(s * y) * np.cos(s * z) + np.sin(s * z) * np.cos(s * x)
-    v = np.maximum(g, np.sqrt(x * x + y * y + z * z) - 0.9)
-    frames.append(np.clip(32768 + v * 20000, 0, 65535).astype("<u2").tobytes())
+frames = [np.clip(32768 + v * 20000, 0, 65535).astype("<u2").tobytes() for k, v in gyroid_ball(n)]
 meta = FileMetaDataset()
 meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.7.3"
 meta.MediaStorageSOPInstanceUID = generate_uid()
