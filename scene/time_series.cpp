@@ -180,7 +180,18 @@ void resolveTimeSeries(SceneDesc& scene) {
     }
     // Shapes and types from the headers where they are cheap to read (those not remembered read
     // together: one child process for all NIfTI headers).
-    const std::vector<std::optional<VolumeShape>> shapes = shapesOf(v, t.files);
+    std::vector<std::optional<VolumeShape>> shapes;
+    try {
+      shapes = shapesOf(v, t.files);
+    } catch (const InputError& e) {
+      // A step's own error (it names the file) with its place in the series.
+      const std::string what = e.what();
+      for (size_t k = 0; k < t.files.size(); ++k)
+        if (what.rfind(t.files[k] + ":", 0) == 0)
+          throw InputError(scene.path, t.where, "time step " + std::to_string(k) + " of " + std::to_string(t.files.size()) +
+                                                    ": " + what);
+      throw;
+    }
     const std::optional<VolumeShape>& first = shapes[0];
     if (!first) continue;
     for (size_t k = 1; k < t.files.size(); ++k) {
