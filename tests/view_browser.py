@@ -5,7 +5,8 @@ through python3-selenium (Debian's python, which has selenium).
 Checks: the page loads with no console errors; the image appears; moving an iso slider changes
 the surface and the image, which refines in steps (the page's log of the frames it received
 shows every pass of the new version, in order, up to the scene's spp); the integrator switch
-works; the surface's colour map, the slice's position and a clip plane change the server's scene; Save writes
+works; the surface's colour map, the slice's position and a clip plane change the server's scene; a
+scene whose volume changes over time has a time slider that shows another step; Save writes
 files that `isotrace render` turns into the same picture. Nothing waits for
 a time: every wait is for an event the page shows, with a generous limit as a safety net.
 Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
@@ -34,6 +35,56 @@ SCENE = {
     "materials": {"floor": {"type": "diffuse", "color": 0.7}, "ball": {"type": "diffuse", "color": [0.8, 0.3, 0.2]}},
     "lights": [{"type": "point", "position": [2, 4, 2], "intensity": 30}, {"type": "environment", "radiance": 0.3}],
 }
+
+
+def ball_steps(folder):
+    """Two time steps of a ball (radius 3 and 6 samples in a 16^3 float32 grid) as raw files; the
+    scene of the series."""
+    import array
+    import math
+    files = []
+    for k, radius in enumerate((3, 6)):
+        values = array.array("f", [radius - math.sqrt((x - 7.5) ** 2 + (y - 7.5) ** 2 + (z - 7.5) ** 2)
+                                   for z in range(16) for y in range(16) for x in range(16)])
+        name = os.path.join(folder, "step%d_16x16x16_float32.raw" % k)
+        with open(name, "wb") as f:
+            values.tofile(f)
+        files.append(name)
+    scene = os.path.join(folder, "series.json")
+    with open(scene, "w") as f:
+        json.dump({"camera": {"position": [7.5, 7.5, 40], "look_at": [7.5, 7.5, 7.5]}, "film": {"width": 160, "height": 120},
+                   "integrator": {"type": "eyelight", "spp": 4},
+                   "volumes": [{"file": files, "isosurfaces": [{"value": 0}]}]}, f)
+    return scene
+
+
+def check_time_slider(binary, work, driver, wait):
+    """A second server, of a time series: its page's time slider moves the server to step 1, and
+    the picture changes."""
+    server = subprocess.Popen([binary, "view", ball_steps(work), "--port", "0"], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        url = server.stdout.readline().strip()
+        driver.get(url)
+        state = lambda: driver.execute_script("return fetch('/api/state').then(r => r.json());")
+        wait.until(lambda d: d.find_elements(By.ID, "time-step") and d.find_element(By.ID, "view").get_attribute("src"))
+        first = driver.find_element(By.ID, "view").get_attribute("src")
+        if state()["time"] != {"step": 0, "steps": 2}:
+            fail("the time series' state: %s" % state().get("time"))
+        slider = driver.find_element(By.ID, "time-step")
+        driver.execute_script("const r = arguments[0]; r.value = 1; r.dispatchEvent(new Event('input', {bubbles: true}));",
+                              slider)
+        wait.until(lambda d: state()["time"]["step"] == 1)
+        wait.until(lambda d: d.find_element(By.ID, "view").get_attribute("src") != first)
+        # (Leaving the first page cut its event stream, which the browser logs as a failed load of
+        # /api/events; this page's own errors count.)
+        errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR") and
+                  not ("/api/events" in e["message"] and "ERR_INCOMPLETE_CHUNKED_ENCODING" in e["message"])]
+        if errors:
+            fail("console errors on the time series' page: %s" % errors)
+    finally:
+        server.send_signal(2)
+        server.wait(timeout=60)
 
 
 def fail(message):
@@ -168,7 +219,10 @@ def main():
         errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
         if errors:
             fail("console errors: %s" % errors)
-        print("view_browser: ok (page, refinement to %d spp, slider, integrator, colour map, slice, clip, save)" % spp())
+        reached = spp()
+        check_time_slider(binary, work, driver, wait)
+        print("view_browser: ok (page, refinement to %d spp, slider, integrator, colour map, slice, clip, save, "
+              "time slider)" % reached)
     finally:
         if driver:
             driver.quit()
