@@ -87,6 +87,8 @@ struct NiftiLayout {
 NiftiLayout readNiftiLayout(const std::string& path);
 std::string packNiftiLayout(const NiftiLayout& l);
 NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path);
+// readNiftiLayout in a child process, its layout unpacked here.
+NiftiLayout niftiLayoutInChild(const std::string& path);
 // The file's samples of a type the grid does not hold (or scaled) to float32.
 ToFloat niftiToFloat(int datatype);
 // Where time point `time` (from 0) of the file's dim[4] begins (an error beyond them), noted in `l`.

@@ -160,8 +160,7 @@ std::vector<std::optional<VolumeShape>> volumeFileShapes(const std::vector<std::
 
 int volumeTimePoints(const std::string& path) {
   if (!isNiftiName(lower(fs::path(path).filename().string()))) return 0;
-  return unpackNiftiLayout(runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report,
-                           path).timePoints;
+  return niftiLayoutInChild(path).timePoints;
 }
 
 std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout, const VolumePart& part) {

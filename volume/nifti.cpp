@@ -176,6 +176,11 @@ NiftiLayout unpackNiftiLayout(const std::string& s, const std::string& path) {
   return l;
 }
 
+NiftiLayout niftiLayoutInChild(const std::string& path) {
+  return unpackNiftiLayout(
+      runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report, path);
+}
+
 // Where time point `time` begins: frames follow each other from the header's offset. A time point
 // past the file's is an error naming dim[4]; one time point of several is noted.
 size_t timePointOffset(NiftiLayout& l, int time, const std::string& path) {

@@ -190,8 +190,7 @@ std::optional<SampleRuns> sampleRunsOf(const std::string& path, const RawLayout&
   if ((!isRawName(name) && !nrrd && !meta && !vtk && !nifti) || checkInputFile(path, "file").stream) return std::nullopt;
   SampleRuns s;
   if (nifti) {
-    NiftiLayout l = unpackNiftiLayout(
-        runInChildProcess(path, "libnifti", [&](int) { return packNiftiLayout(readNiftiLayout(path)); }).report, path);
+    NiftiLayout l = niftiLayoutInChild(path);
     l.offset = timePointOffset(l, time, path);
     s.dims = l.dims, s.type = l.native, s.sampleSize = l.sampleSize, s.bigEndian = l.swap;
     if (!l.direct) s.convert = niftiToFloat(l.datatype), s.slope = l.slope, s.inter = l.inter;
