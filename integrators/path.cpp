@@ -27,11 +27,13 @@ void PathIntegrator::sampleLight(PathState& p, const Hit& hit, const Bsdf& bsdf,
   // Opaque surfaces reflect only to the side wo is on: a light behind the geometric surface
   // is not seen through it, whatever the shading normal says.
   if (dot(ls.wi, hit.normal) * dot(wo, hit.normal) <= 0) return;
-  const Vec3f f = bsdf.f(wo, ls.wi) * std::fabs(dot(ls.wi, bsdf.frame().n));
+  // (The BSDF's pdf only weighs a light that BSDF sampling could also reach.)
+  float bsdfPdf = 0;
+  const Vec3f f = bsdf.evaluate(ls.wi, ls.delta ? nullptr : &bsdfPdf) * std::fabs(dot(ls.wi, bsdf.frame().n));
   if (isBlack(f)) return;
   ++counters.shadow;
   const float lightPdf = ls.pdf * pickPdf;
-  const float weight = ls.delta ? 1.f : powerHeuristic(lightPdf, bsdf.pdf(wo, ls.wi));
+  const float weight = ls.delta ? 1.f : powerHeuristic(lightPdf, bsdfPdf);
   const bool isDirect = p.bounce == 0;
   auto add = [&](const Vec3f& Ld) {
     p.L += p.beta * Ld;
@@ -124,7 +126,7 @@ void PathIntegrator::afterTrace(PathState& p, bool found, const Hit& hit, RayCou
     if (p.featurePending) recordFeatures(p, hit);
     return;
   }
-  const Bsdf bsdf = m_world.bsdf(hit);
+  const Bsdf bsdf = m_world.bsdf(hit, wo);
   // The denoiser's albedo and normal: those of the first surface that is not a perfect mirror or
   // glass, tinted by what the specular bounces before it passed (a glass skin over bone gives the
   // bone's), so that what is seen through glass keeps its edges.
@@ -134,7 +136,7 @@ void PathIntegrator::afterTrace(PathState& p, bool found, const Hit& hit, RayCou
   Sampler& sampler = p.sampler;
   const float u0 = sampler.next(), u1 = sampler.next(), u2 = sampler.next();
   BsdfSample bs;
-  if (!bsdf.sample(wo, u0, u1, u2, bs) || (last && !bs.straight)) return;
+  if (!bsdf.sample(u0, u1, u2, bs) || (last && !bs.straight)) return;
   // A reflection must leave on wo's side of the geometric surface, a transmission on the
   // other; otherwise the shading normal has bent it through the surface.
   const bool sameSide = dot(bs.wi, hit.normal) * dot(wo, hit.normal) > 0;

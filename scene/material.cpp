@@ -21,8 +21,10 @@ Vec3f schlick(const Vec3f& f0, float cosine) {
 Frame Frame::fromNormal(const Vec3f& n, const Vec3f& hint) {
   Frame f;
   f.n = n;
-  Vec3f s = hint - n * dot(n, hint);
-  float len = length(s);
+  // (A zero hint, as surfaces without texture coordinates give, always takes the fallback.)
+  const bool noHint = hint.x == 0 && hint.y == 0 && hint.z == 0;
+  Vec3f s = noHint ? Vec3f{0, 0, 0} : hint - n * dot(n, hint);
+  float len = noHint ? 0.f : length(s);
   if (!(len > 1e-6f)) {
     // Duff et al. 2017, "Building an Orthonormal Basis, Revisited".
     const float sign = std::copysign(1.f, n.z), a = -1 / (sign + n.z), b = n.x * n.y * a;
@@ -162,86 +164,113 @@ Vec3f multipleScatteringTint(const Vec3f& f0, float roughness) {
 
 }  // namespace ggx
 
-Vec3f Bsdf::multipleScattering(const Vec3f& wo, const Vec3f& wi, const Vec3f& f0) const {
-  const float eAvg = ggx::averageAlbedo(m_roughness);
-  if (!(eAvg < 1)) return {0, 0, 0};
-  const float lobe = (1 - ggx::albedo(wo.z, m_roughness)) * (1 - ggx::albedo(wi.z, m_roughness)) / (kPi * (1 - eAvg));
-  return ggx::multipleScatteringTint(f0, m_roughness) * lobe;
-}
-
-float Bsdf::multipleScatteringProbability(const Vec3f& wo) const {
-  return std::clamp(1 - ggx::albedo(std::fabs(wo.z), m_roughness), 0.f, 0.9f);
-}
-
 Bsdf::Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior,
            bool thin)
     : m_type(type), m_frame(frame), m_color(color), m_metallic(metallic), m_eta(ior),
       m_thin(thin && type == MaterialType::Dielectric) {
   m_alpha = std::max(roughness * roughness, kMinAlpha);
-  m_roughness = std::sqrt(m_alpha);
+  if (glossy()) m_roughness = std::sqrt(m_alpha);
   m_delta = type == MaterialType::Dielectric || (type == MaterialType::Conductor && roughness * roughness < kMinAlpha);
 }
 
-Vec3f Bsdf::f(const Vec3f& wo, const Vec3f& wi) const {
-  return fLocal(m_frame.toLocal(wo), m_frame.toLocal(wi));
+void Bsdf::setOutgoingLocal(const Vec3f& wo) {
+  m_woLocal = wo;
+  m_flip = wo.z < 0 ? -1.f : 1.f;
+  m_wo = {wo.x, wo.y, wo.z * m_flip};
+  if (!glossy() || m_delta || !(m_wo.z >= 0)) return;
+  m_lambdaO = ggx::lambda(m_wo, m_alpha);
+  const float eAvg = ggx::averageAlbedo(m_roughness);
+  m_multipleScattering = eAvg < 1;
+  m_lostO = 1 - ggx::albedo(m_wo.z, m_roughness);
+  m_msDenominator = kPi * (1 - eAvg);
+  // glTF 2.0 Appendix B: the specular layer's Fresnel at normal incidence, 0.04 for the
+  // dielectric part and the base colour for the metal part.
+  m_f0 = m_type == MaterialType::Conductor ? m_color
+                                           : Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
+  m_tint = ggx::multipleScatteringTint(m_f0, m_roughness);
+  if (m_type == MaterialType::Conductor) {
+    // Conductors send a share of samples to the multiple-scattering lobe (cosine-distributed).
+    const float q = std::clamp(m_lostO, 0.f, 0.9f);
+    m_specularShare = 1 - q;
+    m_cosineShare = q;
+  } else {
+    // The glTF material's specular share: its Fresnel weight at wo against the diffuse albedo,
+    // kept away from 0 and 1 so both lobes stay sampled.
+    const float spec = luminance(schlick(m_f0, std::fabs(m_wo.z)));
+    const float diff = luminance(m_color) * (1 - m_metallic) * (1 - spec);
+    m_specularShare = diff <= 0 ? 1 : std::clamp(spec / (spec + diff), 0.1f, 0.9f);
+    m_cosineShare = 1 - m_specularShare;
+  }
 }
-float Bsdf::pdf(const Vec3f& wo, const Vec3f& wi) const {
-  return pdfLocal(m_frame.toLocal(wo), m_frame.toLocal(wi));
+
+float Bsdf::pdf(const Vec3f& wi) const {
+  float p;
+  evaluateLocal(m_frame.toLocal(wi), &p);
+  return p;
 }
-bool Bsdf::sample(const Vec3f& woWorld, float u0, float u1, float u2, BsdfSample& out) const {
-  if (!sampleLocal(m_frame.toLocal(woWorld), u0, u1, u2, out)) return false;
+
+bool Bsdf::sample(float u0, float u1, float u2, BsdfSample& out) const {
+  if (!sampleOutgoing(u0, u1, u2, out)) return false;
   out.wi = m_frame.toWorld(out.wi);
   return true;
 }
 
-// The share of samples the glTF material sends to its specular lobe: its Fresnel weight at
-// normal incidence against the diffuse albedo, kept away from 0 and 1 so both lobes stay sampled.
-float Bsdf::specularProbability(const Vec3f& wo) const {
-  const Vec3f f0 = Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
-  const float spec = luminance(schlick(f0, std::fabs(wo.z)));
-  const float diff = luminance(m_color) * (1 - m_metallic) * (1 - spec);
-  if (diff <= 0) return 1;
-  return std::clamp(spec / (spec + diff), 0.1f, 0.9f);
+Vec3f Bsdf::fLocal(const Vec3f& wo, const Vec3f& wi) const {
+  Bsdf b(*this);
+  b.setOutgoingLocal(wo);
+  return b.evaluateLocal(wi, nullptr);
 }
 
-Vec3f Bsdf::fLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
+float Bsdf::pdfLocal(const Vec3f& wo, const Vec3f& wi) const {
+  Bsdf b(*this);
+  b.setOutgoingLocal(wo);
+  float p;
+  b.evaluateLocal(wi, &p);
+  return p;
+}
+
+bool Bsdf::sampleLocal(const Vec3f& wo, float u0, float u1, float u2, BsdfSample& out) const {
+  Bsdf b(*this);
+  b.setOutgoingLocal(wo);
+  return b.sampleOutgoing(u0, u1, u2, out);
+}
+
+// Visible-normal sampling's density of h (Heitz 2018, eq. 3), D(h) given, turned into a density
+// of the reflected direction (the 1 / (4 wo.h) Jacobian).
+float Bsdf::specularPdf(const Vec3f& h, float d) const {
+  const float pdfH = d / (1 + m_lambdaO) * std::max(0.f, dot(m_wo, h)) / m_wo.z;
+  return pdfH / (4 * dot(m_wo, h));
+}
+
+Vec3f Bsdf::evaluateLocal(const Vec3f& wiIn, float* pdf) const {
+  if (pdf) *pdf = 0;
   if (m_delta || m_type == MaterialType::Emissive) return {0, 0, 0};
-  if (woIn.z * wiIn.z <= 0) return {0, 0, 0};  // opaque: reflection only
-  // Opaque materials are two-sided: mirror both directions to the upper hemisphere.
-  const float flip = woIn.z < 0 ? -1.f : 1.f;
-  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip}, wi{wiIn.x, wiIn.y, wiIn.z * flip};
-  if (m_type == MaterialType::Diffuse) return m_color / kPi;
-  const Vec3f h = normalize(wo + wi);
-  const float G = 1 / (1 + ggx::lambda(wo, m_alpha) + ggx::lambda(wi, m_alpha));
-  const float spec = ggx::D(h, m_alpha) * G / (4 * wo.z * wi.z);
-  if (m_type == MaterialType::Conductor) return schlick(m_color, dot(wi, h)) * spec + multipleScattering(wo, wi, m_color);
+  if (m_woLocal.z * wiIn.z <= 0) return {0, 0, 0};  // opaque: reflection only
+  const Vec3f wi{wiIn.x, wiIn.y, wiIn.z * m_flip};
+  const float cosine = wi.z / kPi;
+  if (m_type == MaterialType::Diffuse) {
+    if (pdf) *pdf = cosine;
+    return m_color / kPi;
+  }
+  const Vec3f h = normalize(m_wo + wi);
+  const float d = ggx::D(h, m_alpha);
+  if (pdf) *pdf = m_specularShare * specularPdf(h, d) + m_cosineShare * cosine;
+  const float G = 1 / (1 + m_lambdaO + ggx::lambda(wi, m_alpha));
+  const float spec = d * G / (4 * m_wo.z * wi.z);
+  // The energy single scattering loses, returned as a diffuse-like lobe (Kulla & Conty 2017).
+  const Vec3f ms = m_multipleScattering
+                       ? m_tint * (m_lostO * (1 - ggx::albedo(wi.z, m_roughness)) / m_msDenominator)
+                       : Vec3f{0, 0, 0};
+  if (m_type == MaterialType::Conductor) return schlick(m_color, dot(wi, h)) * spec + ms;
   // glTF 2.0 Appendix B: mix(dielectric_brdf, metal_brdf, metallic) with Schlick Fresnel,
   // the specular layer with its multiple scattering.
-  const Vec3f f0 = Vec3f{0.04f, 0.04f, 0.04f} * (1 - m_metallic) + m_color * m_metallic;
-  const Vec3f F = schlick(f0, dot(wi, h));
+  const Vec3f F = schlick(m_f0, dot(wi, h));
   const Vec3f diffuse = (Vec3f{1, 1, 1} - F) * m_color * ((1 - m_metallic) / kPi);
-  return diffuse + F * spec + multipleScattering(wo, wi, f0);
+  return diffuse + F * spec + ms;
 }
 
-float Bsdf::pdfLocal(const Vec3f& woIn, const Vec3f& wiIn) const {
-  if (m_delta || m_type == MaterialType::Emissive) return 0;
-  if (woIn.z * wiIn.z <= 0) return 0;
-  const float flip = woIn.z < 0 ? -1.f : 1.f;
-  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip}, wi{wiIn.x, wiIn.y, wiIn.z * flip};
-  const float cosine = wi.z / kPi;
-  if (m_type == MaterialType::Diffuse) return cosine;
-  const Vec3f h = normalize(wo + wi);
-  const float pdfH = ggx::D(h, m_alpha) / (1 + ggx::lambda(wo, m_alpha)) * std::max(0.f, dot(wo, h)) / wo.z;
-  const float spec = pdfH / (4 * dot(wo, h));
-  if (m_type == MaterialType::Conductor) {
-    const float q = multipleScatteringProbability(wo);
-    return (1 - q) * spec + q * cosine;
-  }
-  const float p = specularProbability(wo);
-  return p * spec + (1 - p) * cosine;
-}
-
-bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSample& out) const {
+bool Bsdf::sampleOutgoing(float u0, float u1, float u2, BsdfSample& out) const {
+  const Vec3f& woIn = m_woLocal;
   if (m_type == MaterialType::Emissive || woIn.z == 0) return false;
   if (m_type == MaterialType::Dielectric) {
     // Smooth glass: the side of wo says whether the ray enters (wo.z > 0) or leaves. A thin
@@ -274,11 +303,10 @@ bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSamp
     out.transmission = true;
     return out.pdf > 0;
   }
-  const float flip = woIn.z < 0 ? -1.f : 1.f;
-  const Vec3f wo{woIn.x, woIn.y, woIn.z * flip};
+  const Vec3f& wo = m_wo;
   out.transmission = false;
   if (m_type == MaterialType::Conductor && m_delta) {
-    out.wi = {-wo.x, -wo.y, wo.z * flip};
+    out.wi = {-wo.x, -wo.y, wo.z * m_flip};
     out.f = schlick(m_color, wo.z) / wo.z;
     out.pdf = 1;
     out.delta = true;
@@ -288,19 +316,14 @@ bool Bsdf::sampleLocal(const Vec3f& woIn, float u0, float u1, float u2, BsdfSamp
   Vec3f wi;
   if (m_type == MaterialType::Diffuse) {
     wi = sampleCosineHemisphere(u1, u2);
+  } else if (u0 < m_specularShare) {
+    wi = reflect(wo, ggx::sampleVisibleNormal(wo, m_alpha, u1, u2));
+    if (wi.z <= 0) return false;
   } else {
-    // Conductors send a share of samples to the multiple-scattering lobe (cosine-distributed).
-    const float p = m_type == MaterialType::Conductor ? 1 - multipleScatteringProbability(wo) : specularProbability(wo);
-    if (u0 < p) {
-      wi = reflect(wo, ggx::sampleVisibleNormal(wo, m_alpha, u1, u2));
-      if (wi.z <= 0) return false;
-    } else {
-      wi = sampleCosineHemisphere(u1, u2);
-    }
+    wi = sampleCosineHemisphere(u1, u2);
   }
-  out.wi = {wi.x, wi.y, wi.z * flip};
-  out.f = fLocal(woIn, out.wi);
-  out.pdf = pdfLocal(woIn, out.wi);
+  out.wi = {wi.x, wi.y, wi.z * m_flip};
+  out.f = evaluateLocal(out.wi, &out.pdf);
   return out.pdf > 0;
 }
 

@@ -45,7 +45,11 @@ struct BsdfSample {
   bool straight = false;  // straight through a thin dielectric: the path has not turned
 };
 
-// The local-frame BSDF (z = shading normal, pointing out of the solid).
+// The local-frame BSDF (z = shading normal, pointing out of the solid), seen from one outgoing
+// direction. A path asks the BSDF at a hit several questions from the same wo (f and pdf towards
+// a light, a sample): what depends on wo alone (its local direction, the GGX masking term, the
+// layer's single-scattering albedo and the lobe-choice probability) and on the material alone
+// (the multiple-scattering tint) is computed once, in setOutgoing, and every query reads it.
 class Bsdf {
  public:
   Bsdf() = default;
@@ -55,35 +59,52 @@ class Bsdf {
   Bsdf(MaterialType type, const Frame& frame, const Vec3f& color, float metallic, float roughness, float ior,
        bool thin = false);
 
-  Vec3f f(const Vec3f& wo, const Vec3f& wi) const;
-  float pdf(const Vec3f& wo, const Vec3f& wi) const;
+  // The outgoing direction every query below is from (world space, unit, away from the surface).
+  void setOutgoing(const Vec3f& wo) { setOutgoingLocal(m_frame.toLocal(wo)); }
+  Vec3f f(const Vec3f& wi) const { return evaluateLocal(m_frame.toLocal(wi), nullptr); }
+  float pdf(const Vec3f& wi) const;
+  // f(wi), and pdf(wi) into *pdf when given: the two share their half vector and microfacet terms.
+  Vec3f evaluate(const Vec3f& wi, float* pdf) const { return evaluateLocal(m_frame.toLocal(wi), pdf); }
   // u: three uniform numbers in [0, 1).
-  bool sample(const Vec3f& wo, float u0, float u1, float u2, BsdfSample& out) const;
+  bool sample(float u0, float u1, float u2, BsdfSample& out) const;
   // True when every lobe is a delta (no light sampling helps).
   bool isDelta() const { return m_delta; }
   bool isBlack() const { return m_type == MaterialType::Emissive; }
   const Vec3f& albedo() const { return m_color; }
   const Frame& frame() const { return m_frame; }
 
-  // Local-frame versions, exposed for tests.
+  // Local-frame queries from any wo, for tests (each sets a copy's outgoing direction).
   Vec3f fLocal(const Vec3f& wo, const Vec3f& wi) const;
   float pdfLocal(const Vec3f& wo, const Vec3f& wi) const;
   bool sampleLocal(const Vec3f& wo, float u0, float u1, float u2, BsdfSample& out) const;
 
  private:
-  float specularProbability(const Vec3f& wo) const;
-  // The multiple-scattering lobe of the GGX layer for Fresnel f0 (wo, wi in the upper
-  // hemisphere); the share of conductor samples drawn from it.
-  Vec3f multipleScattering(const Vec3f& wo, const Vec3f& wi, const Vec3f& f0) const;
-  float multipleScatteringProbability(const Vec3f& wo) const;
+  void setOutgoingLocal(const Vec3f& wo);
+  Vec3f evaluateLocal(const Vec3f& wi, float* pdf) const;
+  bool sampleOutgoing(float u0, float u1, float u2, BsdfSample& out) const;
+  // The GGX layer's microfacet pdf of reflecting wo (flipped up) to wi through h, per solid angle of wi.
+  float specularPdf(const Vec3f& h, float d) const;
+  bool glossy() const { return m_type == MaterialType::Conductor || m_type == MaterialType::MetallicRoughness; }
 
   MaterialType m_type = MaterialType::Diffuse;
   Frame m_frame;
   Vec3f m_color{0.8f, 0.8f, 0.8f};
   float m_metallic = 0, m_alpha = 0, m_eta = 1.5f;
-  float m_roughness = 0;  // sqrt(m_alpha): the energy tables' parameter
+  float m_roughness = 0;  // sqrt(m_alpha): the energy tables' parameter (glossy types)
   bool m_thin = false;
   bool m_delta = false;
+  // Set by setOutgoing. Opaque materials are two-sided: their queries mirror wo and wi to the
+  // upper hemisphere (m_flip); glass keeps wo as it is (its side says entering or leaving).
+  Vec3f m_woLocal{0, 0, 1};  // wo as given, in the local frame
+  Vec3f m_wo{0, 0, 1};       // flipped up
+  float m_flip = 1;
+  // Glossy types, from wo: Smith's lambda(wo), 1 - E(wo) (the layer's lost energy, Kulla-Conty),
+  // and the share of samples drawn from the specular lobe (1 - the multiple-scattering share
+  // for conductors). From the material: f0, 1 - Eavg scaled by pi, and the returned energy's tint.
+  float m_lambdaO = 0, m_lostO = 0, m_msDenominator = 0;
+  float m_specularShare = 0, m_cosineShare = 0;  // pdf = specular share * its pdf + cosine share * cos / pi
+  bool m_multipleScattering = false;  // Eavg < 1
+  Vec3f m_f0{0, 0, 0}, m_tint{0, 0, 0};
 };
 
 // GGX (Trowbridge-Reitz) with the height-correlated Smith term; visible-normal sampling

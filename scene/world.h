@@ -143,9 +143,9 @@ class World {
   // through (1 without thin materials: then it is intersect()).
   bool intersectPastThin(const Ray& ray, Hit& hit, Vec3f& T, TraversalStats& stats) const;
 
-  // Shading at a hit: the BSDF (textures and normal map applied), the base colour, and the
-  // radiance emitted towards `wo` (unit, pointing away from the surface).
-  Bsdf bsdf(const Hit& hit) const;
+  // Shading at a hit: the BSDF (textures and normal map applied) seen from `wo`, the base colour,
+  // and the radiance emitted towards `wo` (unit, pointing away from the surface).
+  Bsdf bsdf(const Hit& hit, const Vec3f& wo) const;
   Vec3f albedo(const Hit& hit) const;
   // The value "color_by" maps at an iso-surface hit (NaN where its field has none).
   // `ownVolume`: the surface's own volume (for "gradient_magnitude").

@@ -482,7 +482,7 @@ Vec3f World::albedo(const Hit& hit) const {
   return c;
 }
 
-Bsdf World::bsdf(const Hit& hit) const {
+Bsdf World::bsdf(const Hit& hit, const Vec3f& wo) const {
   const Material& m = m_materials[hit.material];
   float metallic = m.metallic, roughness = m.roughness;
   if (m.metallicRoughnessTexture >= 0) {
@@ -502,7 +502,9 @@ Bsdf World::bsdf(const Hit& hit) const {
     const Vec3f mapped = t * local.x + b * local.y + n * local.z;
     if (length(mapped) > 0 && std::isfinite(length(mapped))) n = normalize(mapped);
   }
-  return Bsdf(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
+  Bsdf b(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
+  b.setOutgoing(wo);
+  return b;
 }
 
 Vec3f World::emitted(const Hit& hit, const Vec3f& wo) const {
@@ -527,20 +529,42 @@ bool goesThrough(const Hit& hit, const Vec3f& w) {
 
 }  // namespace
 
-Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
-  const Vec3d n(dot(w, hit.normal) < 0 ? -hit.normal : hit.normal);  // towards the leaving side
-  const Vec3d p = hit.position64;
-  const Vec3d a = absv(p);
+namespace {
+
+// A triangle hit's offset origin (offsetRayOrigin), in float: where Embree sees it.
+Vec3f offsetTriangleOrigin(const Hit& hit, const Vec3f& w) {
+  const Vec3f nf = dot(w, hit.normal) < 0 ? -hit.normal : hit.normal;  // towards the leaving side
+  const Vec3d n(nf);
+  const Vec3d& p = hit.position64;
   // pbrt rejects hits at t = 0, Embree accepts them (t >= tnear = 0): an origin must lie
   // strictly on the leaving side even where the bound is 0 (a hit on the plane y = 0 has no
-  // error in y). For triangles, which Embree intersects in float, the floor is one float
-  // spacing at the point's magnitude (a representable move, never a denormal, which Embree
-  // flushes to zero); iso-surfaces are intersected from the double origin, so theirs is
-  // one double spacing.
-  const double spacing = hit.surface >= 0 ? 0x1p-52 : 0x1p-23;
-  const double floor = std::max(std::max({a.x, a.y, a.z}) * spacing, 1e-20);
-  const double d = std::max(hit.surface >= 0 ? double(hit.spawnOffset) : dot(absv(n), Vec3d(hit.pError)), floor);
-  if (hit.surface >= 0 && !hit.cap && length(Vec3d(hit.incoming)) > 0) {
+  // error in y). Embree intersects triangles in float: the floor is one float spacing at the
+  // point's magnitude (a representable move, never a denormal, which Embree flushes to zero).
+  const double largest = std::max(std::max(std::fabs(p.x), std::fabs(p.y)), std::fabs(p.z));
+  const double floor = std::max(largest * 0x1p-23, 1e-20);
+  const double d = std::max(std::fabs(n.x) * double(hit.pError.x) + std::fabs(n.y) * double(hit.pError.y) +
+                                std::fabs(n.z) * double(hit.pError.z),
+                            floor);
+  // Then rounded away from the surface in float.
+  Vec3f o(p + n * d);
+  for (int i = 0; i < 3; ++i) {
+    if (nf[i] > 0) o[i] = nextFloatUp(o[i]);
+    else if (nf[i] < 0) o[i] = nextFloatDown(o[i]);
+  }
+  return o;
+}
+
+}  // namespace
+
+Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
+  if (hit.surface < 0) return Vec3d(offsetTriangleOrigin(hit, w));
+  const Vec3d p = hit.position64;
+  const Vec3d a = absv(p);
+  // As for triangles, the origin lies strictly on the leaving side even where the bound is 0;
+  // iso-surfaces are intersected from the double origin, so the floor is one double spacing.
+  const double floor = std::max(std::max({a.x, a.y, a.z}) * 0x1p-52, 1e-20);
+  const double d = std::max(double(hit.spawnOffset), floor);
+  if (!hit.cap && length(Vec3d(hit.incoming)) > 0) {
     // An iso-surface's origin moves along the incoming ray, on whose line the crossing and its
     // class were decided: forward past the hit for a ray that goes through, back for one that
     // turns back. Along the normal it could land on the wrong side where the hit sits on a
@@ -550,33 +574,27 @@ Vec3d offsetRayOrigin(const Hit& hit, const Vec3f& w) {
     const Vec3d in = normalize(Vec3d(hit.incoming));
     return p + in * (goesThrough(hit, w) ? d : -d);
   }
-  Vec3d po = p + n * d;
-  if (hit.surface < 0) {
-    // Round away from the surface in float, where Embree will see it.
-    Vec3f pf(po);
-    for (int i = 0; i < 3; ++i) {
-      if (n[i] > 0) pf[i] = nextFloatUp(pf[i]);
-      else if (n[i] < 0) pf[i] = nextFloatDown(pf[i]);
-    }
-    po = Vec3d(pf);
-  }
-  return po;
+  const Vec3d n(dot(w, hit.normal) < 0 ? -hit.normal : hit.normal);  // towards the leaving side
+  return p + n * d;
 }
 
 namespace {
 
+// The ray leaving `hit` towards w, but for its direction (and far end).
 Ray leaving(const Hit& hit, const Vec3f& w) {
   Ray r;
+  r.tnear = 0;
+  if (hit.surface < 0) {
+    r.org = offsetTriangleOrigin(hit, w);
+    return r;
+  }
   const Vec3d o = offsetRayOrigin(hit, w);
   r.org = Vec3f(o);
-  r.tnear = 0;
-  if (hit.surface >= 0) {
-    r.org64 = o;
-    r.fromOffset = o - hit.position64;
-    r.fromSurface = hit.surface;
-    r.fromCap = hit.cap;
-    r.fromInside = goesThrough(hit, w) ? hit.insideAfter : !hit.insideAfter;
-  }
+  r.org64 = o;
+  r.fromOffset = o - hit.position64;
+  r.fromSurface = hit.surface;
+  r.fromCap = hit.cap;
+  r.fromInside = goesThrough(hit, w) ? hit.insideAfter : !hit.insideAfter;
   return r;
 }
 
