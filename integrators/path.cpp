@@ -66,9 +66,9 @@ void PathIntegrator::sampleLight(PathState& p, const Hit& hit, const Bsdf& bsdf,
   p.shadowing = true;
 }
 
-void PathIntegrator::recordFeatures(PathState& p, const Hit& hit) const {
+void PathIntegrator::recordFeatures(PathState& p, const Hit& hit, const Vec3f& albedo) const {
   p.featurePending = false;
-  p.out.albedo = m_world.albedo(hit) * p.beta;
+  p.out.albedo = albedo * p.beta;
   p.out.normal = hit.shading;
 }
 
@@ -123,14 +123,14 @@ void PathIntegrator::afterTrace(PathState& p, bool found, const Hit& hit, RayCou
   const Material& material = m_world.materials()[size_t(hit.material)];
   const bool last = p.bounce == m_maxDepth;
   if (last && !(material.thin && material.type == MaterialType::Dielectric)) {
-    if (p.featurePending) recordFeatures(p, hit);
+    if (p.featurePending) recordFeatures(p, hit, m_world.albedo(hit));
     return;
   }
   const Bsdf bsdf = m_world.bsdf(hit, wo);
   // The denoiser's albedo and normal: those of the first surface that is not a perfect mirror or
   // glass, tinted by what the specular bounces before it passed (a glass skin over bone gives the
   // bone's), so that what is seen through glass keeps its edges.
-  if (p.featurePending && (!bsdf.isDelta() || bsdf.isBlack())) recordFeatures(p, hit);
+  if (p.featurePending && (!bsdf.isDelta() || bsdf.isBlack())) recordFeatures(p, hit, bsdf.albedo());
   if (bsdf.isBlack()) return;
   if (!bsdf.isDelta()) sampleLight(p, hit, bsdf, wo, counters);
   Sampler& sampler = p.sampler;

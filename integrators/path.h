@@ -24,9 +24,9 @@ class PathIntegrator final : public Integrator {
   // lights: weight 1). See path.cpp.
   void sampleLight(PathState& p, const Hit& hit, const Bsdf& bsdf, const Vec3f& wo, RayCounters& counters) const;
 
-  // The denoiser's features (SampleResult::albedo, normal) from `hit`, seen through the specular
-  // bounces so far.
-  void recordFeatures(PathState& p, const Hit& hit) const;
+  // The denoiser's features (SampleResult::albedo, normal) from `hit` (its base colour `albedo`),
+  // seen through the specular bounces so far.
+  void recordFeatures(PathState& p, const Hit& hit, const Vec3f& albedo) const;
 
   int m_maxDepth;
   bool m_split;

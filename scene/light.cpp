@@ -19,7 +19,7 @@ Distribution1D::Distribution1D(const std::vector<float>& weights) : m_weights(we
   m_total = float(sum);
 }
 
-int Distribution1D::sample(float u, float& pdf, float& remapped) const {
+int Distribution1D::pick(float u, float& pdf) const {
   const double target = double(u) * m_cdf.back();
   // The first bin whose cdf end exceeds the target; zero-weight bins are never chosen.
   size_t lo = 0, hi = m_weights.size() - 1;
@@ -28,10 +28,17 @@ int Distribution1D::sample(float u, float& pdf, float& remapped) const {
     if (m_cdf[mid + 1] <= target) lo = mid + 1;
     else hi = mid;
   }
-  const double width = m_cdf[lo + 1] - m_cdf[lo];
-  remapped = width > 0 ? float(std::clamp((target - m_cdf[lo]) / width, 0.0, 0x1.fffffep-1)) : 0.f;
   pdf = probability(int(lo));
   return int(lo);
+}
+
+int Distribution1D::sample(float u, float& pdf, float& remapped) const {
+  const int bin = pick(u, pdf);
+  const double target = double(u) * m_cdf.back();
+  const size_t lo = size_t(bin);
+  const double width = m_cdf[lo + 1] - m_cdf[lo];
+  remapped = width > 0 ? float(std::clamp((target - m_cdf[lo]) / width, 0.0, 0x1.fffffep-1)) : 0.f;
+  return bin;
 }
 
 Vec3f Light::directionFromLatLong(float u, float v) {

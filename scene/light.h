@@ -28,6 +28,8 @@ class Distribution1D {
   explicit Distribution1D(const std::vector<float>& weights);
   // Returns the bin; `pdf` is the bin's probability; `remapped` the position inside it in [0, 1).
   int sample(float u, float& pdf, float& remapped) const;
+  // The bin alone (sample's, without the position inside it).
+  int pick(float u, float& pdf) const;
   float probability(int bin) const { return m_total > 0 ? m_weights[bin] / m_total : 0; }
   float total() const { return m_total; }
   size_t size() const { return m_weights.size(); }

@@ -752,8 +752,7 @@ void World::addIsoSurfaceLight(int index) {
 int World::pickLight(float u, float& probability) const {
   probability = 0;
   if (m_lights.empty()) return -1;
-  float remapped;
-  return m_lightPick.sample(u, probability, remapped);
+  return m_lightPick.pick(u, probability);
 }
 
 void World::buildSlices(const SceneDesc& scene) {
