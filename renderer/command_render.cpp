@@ -381,6 +381,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     DenoiseInput denoiseInput;
     const bool denoising = s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator);
     options.denoiseInput = denoising ? &denoiseInput : nullptr;
+    options.denoiserSums = denoising;
     RenderResult result =
         !byTiles ? renderFrame(camera, *integrator, options, film, direct.get())
         : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &frameFigures)

@@ -52,6 +52,10 @@ struct RenderOptions {
   // of the even and odd samples, variances and features, for the beauty and, where the
   // integrator splits it, the direct and indirect parts.
   DenoiseInput* denoiseInput = nullptr;
+  // Whether PixelSums keep what only the denoiser reads (the odd samples' half sums, the direct
+  // part's moments). Off where nothing will denoise this frame (a CLI render without --denoise);
+  // on for the view and Python, which may denoise a frame after it is rendered.
+  bool denoiserSums = true;
 };
 
 // The scene's render settings as renderFrame takes them (ray flow, spp, seed, threads, adaptive
@@ -92,8 +96,9 @@ struct PixelSums {
   int oddDepthHits = 0;
 };
 
-// Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order).
-[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha) {
+// Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order);
+// `denoiserSums`: RenderOptions::denoiserSums.
+[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha, bool denoiserSums) {
   const bool background = !std::isfinite(result.depth);
   const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
   p.L += L;
@@ -105,13 +110,15 @@ struct PixelSums {
   p.direct += direct;
   p.albedo += albedo;
   p.normal += normal;
-  p.direct2 += direct * direct;
-  p.directL += direct * L;
   if (!background) {
     p.depth += result.depth;
     ++p.depthHits;
   }
-  if (p.samples & 1) {
+  if (denoiserSums) {
+    p.direct2 += direct * direct;
+    p.directL += direct * L;
+  }
+  if (denoiserSums && (p.samples & 1)) {
     p.oddL += L;
     p.oddDirect += direct;
     p.oddAlbedo += albedo;
