@@ -46,7 +46,7 @@ class AmbientOcclusionIntegrator final : public Integrator {
     recordFirstHit(p.ray, hit, p.out);
     const Vec3f wo = -normalize(p.ray.dir);
     const Vec3f n = dot(hit.shading, wo) < 0 ? -hit.shading : hit.shading;
-    const Frame frame = Frame::fromNormal(n, hit.dpdu);
+    const Frame frame = Frame::fromNormal(n, World::textureFrame(hit).dpdu);
     const float u0 = p.sampler.next(), u1 = p.sampler.next();
     const Vec3f wi = frame.toWorld(sampleCosineHemisphere(u0, u1));
     p.shadow = spawnRay(hit, wi);

@@ -22,6 +22,8 @@ using namespace mpi;
 
 namespace {
 
+// (The hits a rank answers are of iso-surfaces only, the rays' mask says so: a triangle hit's
+// pointers into its rank's meshes, Hit::triangles and toWorld, never travel.)
 static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<Hit>,
               "rays and hits go between ranks as bytes (every rank runs the same binary)");
 

@@ -22,7 +22,8 @@
 namespace iso {
 
 // (A new field must be written by both World::fillHit (iso-surfaces) and World::fillTriangleHit,
-// which fill a Hit without clearing it first.)
+// which fill a Hit without clearing it first.) What only shading reads of a triangle hit (its
+// texture coordinates and tangents: World::textureFrame) is not built with it.
 struct Hit {
   float t = 0;
   float tError = 0;   // |t - true t| <= tError (iso-surfaces; 0 for triangles)
@@ -32,8 +33,6 @@ struct Hit {
                       // within float rounding)
   Vec3f normal;       // geometric, unit, world space, pointing out of the solid
   Vec3f shading;      // interpolated shading normal (before normal mapping), unit
-  Vec3f dpdu, dpdv;   // surface tangents along the texture coordinates (0 if none)
-  Vec2f uv;
   int material = 0;   // index into World::materials()
   int surface = -1;   // iso-surface index, or -1 for a triangle
   int mesh = -1;      // scene mesh index, or -1 for an iso-surface
@@ -41,10 +40,21 @@ struct Hit {
   int triangle = -1;  // triangle index inside that area light
   int slice = -1;     // a slice plane (World::slices()), or -1
   float b1 = 0, b2 = 0;  // barycentrics of a triangle hit
+  // A triangle hit: its mesh (object space), the triangle, and the mesh's placement (null: the
+  // mesh is stored in world space). Null for iso-surfaces.
+  const TriangleMesh* triangles = nullptr;
+  unsigned prim = 0;
+  const Transform* toWorld = nullptr;
   float spawnOffset = 0;  // iso-surfaces: how far a ray leaving the hit starts off it
   Vec3f incoming;        // direction of the ray that made the hit
   bool insideAfter = false;  // iso-surfaces: the ray is inside (value > iso) just past the hit
   bool cap = false;          // iso-surfaces: a cap, where a clip plane cuts the solid open
+};
+
+// A hit's texture coordinates and the surface tangents along them (World::textureFrame).
+struct TextureFrame {
+  Vec2f uv;          // a triangle's barycentrics (b1, b2) where its mesh has no texture coordinates
+  Vec3f dpdu, dpdv;  // world space; 0 without texture coordinates (and for iso-surfaces)
 };
 
 struct SurfaceInfo {
@@ -147,6 +157,8 @@ class World {
   // and the radiance emitted towards `wo` (unit, pointing away from the surface).
   Bsdf bsdf(const Hit& hit, const Vec3f& wo) const;
   Vec3f albedo(const Hit& hit) const;
+  // The hit's texture coordinates and tangents, computed on demand: only shading reads them.
+  static TextureFrame textureFrame(const Hit& hit);
   // The value "color_by" maps at an iso-surface hit (NaN where its field has none).
   // `ownVolume`: the surface's own volume (for "gradient_magnitude").
   double colorValue(const ColorByDesc& c, int ownVolume, const Vec3d& world) const;

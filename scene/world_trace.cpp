@@ -301,8 +301,9 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
     hit.incoming = ray.dir;
     hit.mesh = hit.light = hit.triangle = hit.slice = -1;
     hit.b1 = hit.b2 = 0;
-    hit.uv = Vec2f{0, 0};
-    hit.dpdu = hit.dpdv = Vec3f{0, 0, 0};
+    hit.triangles = nullptr;
+    hit.prim = 0;
+    hit.toWorld = nullptr;
     // Iso-surface: the intersector's bound on t becomes a bound on the position.
     fillIsoHit(ray, rec.surface, lane.t, lane.tError, Vec3d{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z},
                lane.insideAfter, lane.cap, rec.identity ? nullptr : &rec.toWorld, hit);
@@ -335,19 +336,10 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   hit.triangle = rec.light >= 0 ? int(prim) : -1;
   hit.b1 = b1;
   hit.b2 = b2;
+  hit.triangles = &m;
+  hit.prim = prim;
+  hit.toWorld = rec.identity ? nullptr : &rec.toWorld;
   Vec3f ns = m.normals.empty() ? Vec3f{0, 0, 0} : m.normals[i0] * b0 + m.normals[i1] * b1 + m.normals[i2] * b2;
-  Vec2f uv{b1, b2};
-  Vec3f dpdu, dpdv;
-  if (!m.uvs.empty()) {
-    const Vec2f t0 = m.uvs[i0], t1 = m.uvs[i1], t2 = m.uvs[i2];
-    uv = {t0.x * b0 + t1.x * b1 + t2.x * b2, t0.y * b0 + t1.y * b1 + t2.y * b2};
-    const float du1 = t1.x - t0.x, dv1 = t1.y - t0.y, du2 = t2.x - t0.x, dv2 = t2.y - t0.y;
-    const float det = du1 * dv2 - dv1 * du2;
-    if (std::fabs(det) > 1e-12f) {
-      dpdu = ((p1 - p0) * dv2 - (p2 - p0) * dv1) / det;
-      dpdv = ((p2 - p0) * du1 - (p1 - p0) * du2) / det;
-    }
-  }
   if (rec.identity) {
     hit.position = pObj;
     hit.pError = errObj;
@@ -363,8 +355,6 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
     hit.position64 = Vec3d(hit.position);
     ng = Vec3f(t.normal(Vec3d(ng)));
     if (length(ns) > 0) ns = Vec3f(t.normal(Vec3d(ns)));
-    dpdu = Vec3f(t.vector(Vec3d(dpdu)));
-    dpdv = Vec3f(t.vector(Vec3d(dpdv)));
   }
   const float ngLen = length(ng);
   hit.normal = ngLen > 0 ? ng * (1 / ngLen) : -ray.dir;
@@ -373,9 +363,31 @@ void World::occludedPacket(const Ray* rays, int n, bool* blocked, TraversalStats
   // The geometric normal follows the shading normals' side (pbrt's convention): vertex
   // normals say which way is out even where the winding disagrees.
   if (dot(hit.normal, hit.shading) < 0) hit.normal = -hit.normal;
-  hit.uv = uv;
-  hit.dpdu = dpdu;
-  hit.dpdv = dpdv;
+}
+
+TextureFrame World::textureFrame(const Hit& hit) {
+  TextureFrame f;
+  if (!hit.triangles) return f;
+  const TriangleMesh& m = *hit.triangles;
+  const unsigned prim = hit.prim;
+  const uint32_t i0 = m.indices[3 * prim], i1 = m.indices[3 * prim + 1], i2 = m.indices[3 * prim + 2];
+  const float b1 = hit.b1, b2 = hit.b2, b0 = 1 - b1 - b2;
+  f.uv = {b1, b2};
+  if (m.uvs.empty()) return f;
+  const Vec3f p0 = m.positions[i0], p1 = m.positions[i1], p2 = m.positions[i2];
+  const Vec2f t0 = m.uvs[i0], t1 = m.uvs[i1], t2 = m.uvs[i2];
+  f.uv = {t0.x * b0 + t1.x * b1 + t2.x * b2, t0.y * b0 + t1.y * b1 + t2.y * b2};
+  const float du1 = t1.x - t0.x, dv1 = t1.y - t0.y, du2 = t2.x - t0.x, dv2 = t2.y - t0.y;
+  const float det = du1 * dv2 - dv1 * du2;
+  if (std::fabs(det) > 1e-12f) {
+    f.dpdu = ((p1 - p0) * dv2 - (p2 - p0) * dv1) / det;
+    f.dpdv = ((p2 - p0) * du1 - (p1 - p0) * du2) / det;
+  }
+  if (hit.toWorld) {
+    f.dpdu = Vec3f(hit.toWorld->vector(Vec3d(f.dpdu)));
+    f.dpdv = Vec3f(hit.toWorld->vector(Vec3d(f.dpdv)));
+  }
+  return f;
 }
 
 bool World::occluded(const Ray& ray, TraversalStats& stats) const {
@@ -478,31 +490,35 @@ Vec3f World::albedo(const Hit& hit) const {
   }
   const Material& m = m_materials[hit.material];
   Vec3f c = m.color;
-  if (m.colorTexture >= 0) c = c * m_textures[m.colorTexture].lookup(hit.uv.x, hit.uv.y).rgb();
+  if (m.colorTexture >= 0) {
+    const Vec2f uv = textureFrame(hit).uv;
+    c = c * m_textures[m.colorTexture].lookup(uv.x, uv.y).rgb();
+  }
   return c;
 }
 
 Bsdf World::bsdf(const Hit& hit, const Vec3f& wo) const {
   const Material& m = m_materials[hit.material];
+  const TextureFrame tf = textureFrame(hit);  // (dpdu is the shading frame's hint even untextured)
   float metallic = m.metallic, roughness = m.roughness;
   if (m.metallicRoughnessTexture >= 0) {
     // glTF: roughness in green, metalness in blue, both linear.
-    const Vec4f mr = m_textures[m.metallicRoughnessTexture].lookup(hit.uv.x, hit.uv.y);
+    const Vec4f mr = m_textures[m.metallicRoughnessTexture].lookup(tf.uv.x, tf.uv.y);
     roughness *= mr.y;
     metallic *= mr.z;
   }
   Vec3f n = hit.shading;
-  if (m.normalTexture >= 0 && length(hit.dpdu) > 0) {
+  if (m.normalTexture >= 0 && length(tf.dpdu) > 0) {
     // Tangent space of the texture: x along +u, y towards the image top (-v), z the normal.
-    const Vec4f c = m_textures[m.normalTexture].lookup(hit.uv.x, hit.uv.y);
+    const Vec4f c = m_textures[m.normalTexture].lookup(tf.uv.x, tf.uv.y);
     const Vec3f local{(2 * c.x - 1) * m.normalScale, (2 * c.y - 1) * m.normalScale, 2 * c.z - 1};
-    const Vec3f t = normalize(hit.dpdu - n * dot(n, hit.dpdu));
+    const Vec3f t = normalize(tf.dpdu - n * dot(n, tf.dpdu));
     Vec3f b = cross(n, t);
-    if (dot(b, hit.dpdv) > 0) b = -b;
+    if (dot(b, tf.dpdv) > 0) b = -b;
     const Vec3f mapped = t * local.x + b * local.y + n * local.z;
     if (length(mapped) > 0 && std::isfinite(length(mapped))) n = normalize(mapped);
   }
-  Bsdf b(m.type, Frame::fromNormal(n, hit.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
+  Bsdf b(m.type, Frame::fromNormal(n, tf.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
   b.setOutgoing(wo);
   return b;
 }

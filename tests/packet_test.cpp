@@ -21,12 +21,18 @@ bool sameBits(const T& a, const T& b) {
   return std::memcmp(&a, &b, sizeof(T)) == 0;
 }
 
+// The texture frames shading builds from two hits (World::textureFrame), as bits.
+bool sameFrame(const Hit& a, const Hit& b) {
+  const TextureFrame fa = World::textureFrame(a), fb = World::textureFrame(b);
+  return sameBits(fa.uv, fb.uv) && sameBits(fa.dpdu, fb.dpdu) && sameBits(fa.dpdv, fb.dpdv);
+}
+
 // The fields a caller reads, compared as bits (a NaN equals itself; -0 differs from 0).
 ::testing::AssertionResult sameHit(const Hit& a, const Hit& b) {
   const bool same = sameBits(a.t, b.t) && sameBits(a.tError, b.tError) && sameBits(a.position, b.position) &&
                     sameBits(a.position64, b.position64) && sameBits(a.pError, b.pError) &&
-                    sameBits(a.normal, b.normal) && sameBits(a.shading, b.shading) && sameBits(a.dpdu, b.dpdu) &&
-                    sameBits(a.dpdv, b.dpdv) && sameBits(a.uv, b.uv) && a.material == b.material &&
+                    sameBits(a.normal, b.normal) && sameBits(a.shading, b.shading) && a.triangles == b.triangles &&
+                    a.prim == b.prim && a.toWorld == b.toWorld && sameFrame(a, b) && a.material == b.material &&
                     a.surface == b.surface && a.mesh == b.mesh && a.light == b.light && a.triangle == b.triangle &&
                     sameBits(a.b1, b.b1) && sameBits(a.b2, b.b2) && sameBits(a.spawnOffset, b.spawnOffset) &&
                     sameBits(a.incoming, b.incoming) && a.insideAfter == b.insideAfter && a.cap == b.cap;
@@ -293,8 +299,12 @@ TEST(Packets, HitRecordsDoNotDependOnWhatTheyHeldBefore) {
     h.position = {3, 3, 3};
     h.position64 = {4, 4, 4};
     h.pError = {5, 5, 5};
-    h.normal = h.shading = h.dpdu = h.dpdv = h.incoming = {9, 9, 9};
-    h.uv = Vec2f{5, 5};
+    h.normal = h.shading = h.incoming = {9, 9, 9};
+    static const TriangleMesh nonsense;
+    static const Transform skewed;
+    h.triangles = &nonsense;
+    h.prim = 77;
+    h.toWorld = &skewed;
     h.material = h.surface = h.mesh = h.light = h.triangle = h.slice = 99;
     h.b1 = h.b2 = 3;
     h.spawnOffset = 4;
