@@ -243,7 +243,8 @@ class World {
   bool needsLanes() const { return !m_surfaces.empty() || !m_sceneClip.empty(); }
   // The lanes of a packet being traced (World::packRays fills the rays Embree is to see).
   struct PacketLanes {
-    LaneSlots<Ray> start;  // each ray as traced (moved onto its volume's box)
+    const Ray* start[kPacket];  // each ray as traced: the caller's, or moved onto its volume's box in `moved`
+    LaneSlots<Ray> moved;
     LaneSlots<Vec3d> origin;
     LaneSlots<IsoRayLane> lanes;
     alignas(32) int valid[kPacket];

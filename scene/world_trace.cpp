@@ -244,10 +244,11 @@ bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalSta
   }
   bool any = false;
   for (int i = 0; i < n; ++i) {
-    const Ray& start = p.start.emplace(i, startInsideVolume(rays[i]));
+    // (startInsideVolume returns a ray not spawned from an iso-surface as it is: no copy then.)
+    const Ray& start = *(p.start[i] = rays[i].fromSurface < 0 ? &rays[i] : &p.moved.emplace(i, startInsideVolume(rays[i])));
     done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
     if (done[i]) continue;
-    if (needsLanes()) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.emplace(i));
+    if (needsLanes()) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.construct(i));
     packLane(start, i, packet);
     p.valid[i] = -1;
     any = true;
@@ -272,7 +273,7 @@ void World::intersectPacket(const Ray* rays, int n, Hit* hits, bool* found, Trav
   stats.add(context.stats);
   for (int i = 0; i < n; ++i) {
     if (!p.valid[i] || packet.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
-    fillHit(p.start[i], laneOf(packet, unsigned(i)), p.lanes[i], hits[i]);
+    fillHit(*p.start[i], laneOf(packet, unsigned(i)), p.lanes[i], hits[i]);
     found[i] = true;
   }
 }

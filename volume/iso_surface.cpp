@@ -1,5 +1,7 @@
 #include "volume/iso_surface.h"
 
+#include <new>
+
 #include "volume/packet_walk.h"
 
 #include <tbb/parallel_for.h>
@@ -141,8 +143,8 @@ bool IsoSurface::floatQueryRay(const Vec3d& org, const Vec3d& dir, double tnear,
   // decides the classes at the ends of the ray's extent in the grid (ExactEnds).
   const GridRay<double> ray64 = queryRay<double>(m_grid, org, dir, tnear, start);
   cache.surface = this;
-  cache.ray = GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
-  cache.exact = {ray64.org, ray64.dir, m_iso, tnear, tfar};
+  new (&cache.ray) GridRay<float>(Vec3f(ray64.org), Vec3f(ray64.dir));
+  new (&cache.exact) ExactEnds{ray64.org, ray64.dir, m_iso, tnear, tfar};
   return true;
 }
 
@@ -250,7 +252,7 @@ bool IsoSurface::query(Vec3i lo, Vec3i hi, const CellClasses* classes, Vec3i cla
         GridRayCache& c = cache ? *cache : local.emplace();
         const bool fresh = floatQueryRay(org, dir, tnear, tfar, start, c);
         if (fresh && !m_clip.empty()) {
-          c.clip = clipSpan(cells, c.ray, c.exact.org, c.exact.dir, org, dir, tnear, tfar, start, onCap);
+          new (&c.clip) ClipSpan(clipSpan(cells, c.ray, c.exact.org, c.exact.dir, org, dir, tnear, tfar, start, onCap));
           c.exact.tnear = c.clip.tnear;
           c.exact.tfar = c.clip.tfar;
         }

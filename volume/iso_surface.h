@@ -54,10 +54,14 @@ class IsoSurface;
 // surface the query visits (its origin, direction, extent and start class do not change), so it
 // is computed once per ray instead of once per brick, and the brick walks read it in place.
 struct GridRayCache {
+  // The three below are left unwritten until IsoSurface::floatQueryRay sets `surface` and writes
+  // them (clip where the surface is clipped): a lane is set up for every ray traced in a scene
+  // with iso-surfaces, and most rays never reach a brick.
+  GridRayCache() {}
   const IsoSurface* surface = nullptr;  // the surface whose grid the rest is in; none yet: null
-  GridRay<float> ray;                   // what the float traversal walks
-  ExactEnds exact;  // the same ray in double with its extent: the float traversal's exact ends
-  ClipSpan clip;    // a clipped surface's span of the ray
+  union { GridRay<float> ray; };        // what the float traversal walks
+  union { ExactEnds exact; };  // the same ray in double with its extent: the float traversal's exact ends
+  union { ClipSpan clip; };    // a clipped surface's span of the ray
   // A ray leaving a cap: the clip region whose boundary its origin lies on (a spawn offset
   // inside it). Another surface clipped by the same region that the ray meets in its solid
   // right there has its cap at the start too (two solids cut by one plane: the ray that goes

@@ -32,6 +32,8 @@ class LaneSlots {
   T& emplace(int lane, Args&&... args) {
     return *new (m_bytes + sizeof(T) * size_t(lane)) T(std::forward<Args>(args)...);
   }
+  // Default-initialised (emplace(lane) value-initialises: zeroes first what T leaves unset).
+  T& construct(int lane) { return *new (m_bytes + sizeof(T) * size_t(lane)) T; }
 
  private:
   alignas(T) unsigned char m_bytes[sizeof(T) * kPacketLanes];
