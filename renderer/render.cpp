@@ -104,7 +104,7 @@ uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums
         const float jx = sampler.next(), jy = sampler.next();
         SampleResult result;
         m_integrator.Li(m_camera.generateRay(x + jx, y + jy), sampler, counters, result);
-        addSample(p, result, m_options.alpha, m_options.denoiserSums);
+        addSample(p, result, m_options.alpha, m_options.kept);
       }
       taken += uint64_t(s1 - s0);
     }

@@ -18,6 +18,17 @@
 
 namespace iso {
 
+// Which of PixelSums' sums a frame keeps, each some 10 to 40 instructions a sample: all of them by
+// default (the view and Python may resolve or denoise a frame any way after it is rendered); a CLI
+// render keeps what its outputs read (see command_render.cpp). The radiance, the sample count and
+// the depth (coverage for alpha) are always kept.
+struct KeptSums {
+  bool denoiser = true;  // the odd samples' half sums, the direct part's moments
+  bool features = true;  // albedo and normal (their AOVs, the denoiser)
+  bool moments = true;   // the squared radiance and luminance (variance AOV, adaptive sampling, the denoiser)
+  bool direct = true;    // the direct part (compare)
+};
+
 struct RenderOptions {
   // How rays are traced: one path at a time (the reference), or a tile's paths in flight at
   // once, their rays traced stage by stage in Embree packets (RayFlow in scene/scene.h). The
@@ -52,10 +63,8 @@ struct RenderOptions {
   // of the even and odd samples, variances and features, for the beauty and, where the
   // integrator splits it, the direct and indirect parts.
   DenoiseInput* denoiseInput = nullptr;
-  // Whether PixelSums keep what only the denoiser reads (the odd samples' half sums, the direct
-  // part's moments). Off where nothing will denoise this frame (a CLI render without --denoise);
-  // on for the view and Python, which may denoise a frame after it is rendered.
-  bool denoiserSums = true;
+  // Which of PixelSums' sums the frame keeps (KeptSums).
+  KeptSums kept;
 };
 
 // The scene's render settings as renderFrame takes them (ray flow, spp, seed, threads, adaptive
@@ -96,36 +105,40 @@ struct PixelSums {
   int oddDepthHits = 0;
 };
 
-// Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order);
-// `denoiserSums`: RenderOptions::denoiserSums.
-[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha, bool denoiserSums) {
+// Adds one sample to its pixel's sums (every ray flow and the MPI layers, in sample order),
+// those `kept` says.
+[[gnu::always_inline]] inline void addSample(PixelSums& p, const SampleResult& result, bool alpha, const KeptSums& kept) {
   const bool background = !std::isfinite(result.depth);
   const Vec3d L = alpha && background ? Vec3d{0, 0, 0} : Vec3d(result.L);
   p.L += L;
-  p.L2 += L * L;
-  const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
-  p.luminance += lum;
-  p.luminance2 += lum * lum;
+  if (kept.moments) {
+    p.L2 += L * L;
+    const double lum = 0.2126 * L.x + 0.7152 * L.y + 0.0722 * L.z;
+    p.luminance += lum;
+    p.luminance2 += lum * lum;
+  }
   const Vec3d direct(result.direct), albedo(result.albedo), normal(result.normal);
-  p.direct += direct;
-  p.albedo += albedo;
-  p.normal += normal;
+  if (kept.direct) p.direct += direct;
+  if (kept.features) {
+    p.albedo += albedo;
+    p.normal += normal;
+  }
   if (!background) {
     p.depth += result.depth;
     ++p.depthHits;
   }
-  if (denoiserSums) {
+  if (kept.denoiser) {
     p.direct2 += direct * direct;
     p.directL += direct * L;
-  }
-  if (denoiserSums && (p.samples & 1)) {
-    p.oddL += L;
-    p.oddDirect += direct;
-    p.oddAlbedo += albedo;
-    p.oddNormal += normal;
-    if (!background) {
-      p.oddDepth += result.depth;
-      ++p.oddDepthHits;
+    if (p.samples & 1) {
+      p.oddL += L;
+      p.oddDirect += direct;
+      p.oddAlbedo += albedo;
+      p.oddNormal += normal;
+      if (!background) {
+        p.oddDepth += result.depth;
+        ++p.oddDepthHits;
+      }
     }
   }
   ++p.samples;

@@ -31,7 +31,7 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
                  const Pixel* pixels, size_t n, int s0, int s1) {
   m_integrator = &integrator;
   m_alpha = options.alpha;
-  m_denoiserSums = options.denoiserSums;
+  m_kept = options.kept;
   m_pixel = pixels;
   m_pixels = n;
   m_samples = size_t(s1 - s0);

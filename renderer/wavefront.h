@@ -72,7 +72,7 @@ class Wave {
       for (size_t s = 0; s < m_samples; ++s) {
         PathState& p = m_paths[i * m_samples + s];
         m_integrator->finish(p);
-        addSample(sums, p.out, m_alpha, m_denoiserSums);
+        addSample(sums, p.out, m_alpha, m_kept);
       }
     }
   }
@@ -81,7 +81,8 @@ class Wave {
   void collectCamera(RayBatch& batch);
 
   const Integrator* m_integrator = nullptr;
-  bool m_alpha = false, m_denoiserSums = true;
+  bool m_alpha = false;
+  KeptSums m_kept;
   const Pixel* m_pixel = nullptr;
   size_t m_pixels = 0, m_samples = 0, m_count = 0;  // pixels, samples of each (s1 - s0), paths
   enum class Stage { Camera, Shadow, Closest } m_next = Stage::Camera;
