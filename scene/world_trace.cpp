@@ -237,6 +237,9 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
                      RTCRay8& packet) const {
   if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket/occludedPacket: 1 to 8 rays");
+  // Lanes without a ray are invalid, and fully written all the same: Embree's vector code loads
+  // every lane before it masks (valgrind's memcheck saw it branch on an unwritten one).
+  for (int i = n; i < kPacket; ++i) packLane(Ray{}, i, packet);
   for (int i = 0; i < kPacket; ++i) {
     p.valid[i] = 0;
     packet.tnear[i] = 0;
