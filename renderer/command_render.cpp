@@ -5,7 +5,6 @@
 #include <tbb/task_arena.h>
 #include <unistd.h>
 
-#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <csignal>
@@ -382,12 +381,7 @@ int renderFrames(const RenderFlags& flags, MpiJob& job, RenderSetup& setup, bool
     DenoiseInput denoiseInput;
     const bool denoising = s.denoise != DenoiseMode::Off && integratorDenoises(s.integrator);
     options.denoiseInput = denoising ? &denoiseInput : nullptr;
-    // The sums this render's outputs read (the denoiser reads them all).
-    auto wants = [&](const char* aov) { return std::find(options.aovs.begin(), options.aovs.end(), aov) != options.aovs.end(); };
-    options.kept.denoiser = denoising;
-    options.kept.features = denoising || wants("albedo") || wants("normal");
-    options.kept.moments = denoising || wants("variance") || options.noiseThreshold > 0;
-    options.kept.direct = denoising || integrator->splitsDirect();
+    options.kept = keptSums(options, integrator->splitsDirect());
     RenderResult result =
         !byTiles ? renderFrame(camera, *integrator, options, film, direct.get())
         : s.dataParallel ? renderFrameDataParallel(job, camera, *integrator, options, film, direct.get(), &frameFigures)

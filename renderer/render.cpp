@@ -314,6 +314,24 @@ void resolveDenoiseInput(const std::vector<PixelSums>& sums, int w, int h, bool 
 
 }  // namespace
 
+namespace {
+
+bool wantsLayer(const RenderOptions& options, const char* name) {
+  return std::find(options.aovs.begin(), options.aovs.end(), name) != options.aovs.end();
+}
+
+}  // namespace
+
+KeptSums keptSums(const RenderOptions& options, bool splitsDirect) {
+  const bool denoising = options.denoiseInput != nullptr;  // the denoiser reads them all
+  KeptSums k;
+  k.denoiser = denoising;
+  k.features = denoising || wantsLayer(options, "albedo") || wantsLayer(options, "normal");
+  k.moments = denoising || wantsLayer(options, "variance") || options.noiseThreshold > 0;
+  k.direct = denoising || splitsDirect;
+  return k;
+}
+
 void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& options, Film& film, Film* directFilm,
                   RenderResult& result) {
   if (options.denoiseInput) resolveDenoiseInput(sums, film.width(), film.height(), directFilm != nullptr, *options.denoiseInput);
@@ -330,9 +348,7 @@ void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& optio
   }
   result.meanSamples = sums.empty() ? 0 : totalSamples / double(sums.size());
   // Averages; what a pixel lacks (no sample yet, or no hit for depth) is 0 / infinity.
-  auto want = [&](const char* name) {
-    return std::find(options.aovs.begin(), options.aovs.end(), name) != options.aovs.end();
-  };
+  auto want = [&](const char* name) { return wantsLayer(options, name); };
   Film::Layer* albedo = want("albedo") ? &film.addLayer("albedo", {"R", "G", "B"}) : nullptr;
   Film::Layer* normal = want("normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
   Film::Layer* depth = want("depth") ? &film.addLayer("depth", {"Z"}) : nullptr;

@@ -20,7 +20,7 @@ namespace iso {
 
 // Which of PixelSums' sums a frame keeps, each some 10 to 40 instructions a sample: all of them by
 // default (the view and Python may resolve or denoise a frame any way after it is rendered); a CLI
-// render keeps what its outputs read (see command_render.cpp). The radiance, the sample count and
+// render keeps what its outputs read (keptSums). The radiance, the sample count and
 // the depth (coverage for alpha) are always kept.
 struct KeptSums {
   bool denoiser = true;  // the odd samples' half sums, the direct part's moments
@@ -66,6 +66,10 @@ struct RenderOptions {
   // Which of PixelSums' sums the frame keeps (KeptSums).
   KeptSums kept;
 };
+
+// The sums resolveFrame reads for `options` (its AOV layers, adaptive sampling, the denoiser's
+// input) and, where `splitsDirect`, a film of the direct part: a frame that is resolved once.
+KeptSums keptSums(const RenderOptions& options, bool splitsDirect);
 
 // The scene's render settings as renderFrame takes them (ray flow, spp, seed, threads, adaptive
 // threshold): the one place the CLI, the view and the Python module turn settings into options;

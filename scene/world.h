@@ -233,6 +233,8 @@ class World {
   unsigned attach(RTCScene scene, RTCGeometry geometry, std::vector<GeometryRecord>& table,
                   const GeometryRecord& record);
   const GeometryRecord& recordOf(const RTCHit& hit) const;
+  // albedo() with the hit's texture frame, where the caller has built it already (nullptr: not).
+  Vec3f albedo(const Hit& hit, const TextureFrame* frame) const;
   void fillHit(const Ray& ray, const RTCRayHit& rh, const IsoRayLane& lane, Hit& hit) const;
   void fillTriangleHit(const Ray& ray, const RTCRayHit& rh, const GeometryRecord& rec, Hit& hit) const;
   // Whether a ray needs its lane (IsoRayLane: the world ray in double, its start class) for the

@@ -237,10 +237,10 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
                      RTCRay8& packet) const {
   if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket/occludedPacket: 1 to 8 rays");
-  // Lanes without a ray are invalid, and fully written all the same: Embree's vector code loads
-  // every lane before it masks (valgrind's memcheck saw it branch on an unwritten one).
-  for (int i = n; i < kPacket; ++i) packLane(Ray{}, i, packet);
   for (int i = 0; i < kPacket; ++i) {
+    // Lanes without a ray are invalid, and fully written all the same: Embree's vector code loads
+    // every lane before it masks (valgrind's memcheck saw it branch on an unwritten one).
+    if (i >= n) packLane(Ray{}, i, packet);
     p.valid[i] = 0;
     packet.tnear[i] = 0;
     packet.tfar[i] = -INFINITY;
@@ -482,7 +482,9 @@ Vec3f World::sliceColor(const Hit& hit) const {
   return s.map.linear(m_volumes[size_t(s.volume)].grid->interpolate(g), s.lo, s.hi);
 }
 
-Vec3f World::albedo(const Hit& hit) const {
+Vec3f World::albedo(const Hit& hit) const { return albedo(hit, nullptr); }
+
+Vec3f World::albedo(const Hit& hit, const TextureFrame* frame) const {
   if (hit.slice >= 0)  // a slice: its map of the volume's value, or black if it only emits
     return m_slices[size_t(hit.slice)].emit ? Vec3f{0, 0, 0} : sliceColor(hit);
   if (hit.surface >= 0) {
@@ -495,7 +497,7 @@ Vec3f World::albedo(const Hit& hit) const {
   const Material& m = m_materials[hit.material];
   Vec3f c = m.color;
   if (m.colorTexture >= 0) {
-    const Vec2f uv = textureFrame(hit).uv;
+    const Vec2f uv = frame ? frame->uv : textureFrame(hit).uv;
     c = c * m_textures[m.colorTexture].lookup(uv.x, uv.y).rgb();
   }
   return c;
@@ -522,7 +524,7 @@ Bsdf World::bsdf(const Hit& hit, const Vec3f& wo) const {
     const Vec3f mapped = t * local.x + b * local.y + n * local.z;
     if (length(mapped) > 0 && std::isfinite(length(mapped))) n = normalize(mapped);
   }
-  Bsdf b(m.type, Frame::fromNormal(n, tf.dpdu), albedo(hit), metallic, roughness, m.ior, m.thin);
+  Bsdf b(m.type, Frame::fromNormal(n, tf.dpdu), albedo(hit, &tf), metallic, roughness, m.ior, m.thin);
   b.setOutgoing(wo);
   return b;
 }
@@ -547,9 +549,6 @@ bool goesThrough(const Hit& hit, const Vec3f& w) {
   return a != 0 && b != 0 ? (a > 0) == (b > 0) : dot(w, hit.incoming) > 0;
 }
 
-}  // namespace
-
-namespace {
 
 // A triangle hit's offset origin (offsetRayOrigin), in float: where Embree sees it.
 Vec3f offsetTriangleOrigin(const Hit& hit, const Vec3f& w) {
