@@ -192,7 +192,8 @@ std::string rankFigures(const RankFigures* f) {
     dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"rays_sent_per_rank\": " +
                    list(f->raysSent) + ",\n  \"rays_received_per_rank\": " + list(f->raysReceived) +
                    ",\n  \"bytes_sent_per_rank\": " +
-                   list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) + ",\n";
+                   list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) +
+                   ",\n  \"tiles_moved_per_rank\": " + list(std::vector<double>(f->tilesMoved.begin(), f->tilesMoved.end())) + ",\n";
   }
   return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +
          jsonNumber(least > 0 ? most / least : 0) + ",\n" + dataParallel;

@@ -8,8 +8,11 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <memory>
+#include <string>
 #include <type_traits>
 
 #include "renderer/distributed.h"
@@ -28,29 +31,27 @@ static_assert(std::is_trivially_copyable_v<Ray> && std::is_trivially_copyable_v<
               "rays and hits go between ranks as bytes (every rank runs the same binary)");
 
 // One stage of a round of paths (its camera, shadow or continuation rays) on its way through the
-// ranks: this rank's rays and what is known of them so far, and the rays the other ranks asked of
-// this rank in the same stage.
+// ranks: this rank's rays, what is known of them so far, and how many ranks have yet to answer.
 struct Flight {
-  RayBatch batch;        // this rank's rays (a Wave's stage)
+  RayBatch batch;         // this rank's rays (a Wave's stage)
   std::vector<int> from;  // the rank whose hit batch.hits holds
-  std::vector<Ray> theirs;  // the rays other ranks sent here, and where they came from
-  std::vector<int> theirIndex, theirRank;
-  std::vector<std::vector<char>> asks, backs;  // this rank's messages, by rank, being written
+  int waiting = 0;        // ranks asked about this stage's rays that have not answered yet
+  uint32_t stage = 0;     // counts the flight's stages (an answer names the stage it answers)
 };
 
 // The ranks of a data-parallel render answering each other's rays. A rank traces its own rays
 // whole (meshes, which every rank holds, and its part of the volumes) and sends each to the other
 // ranks whose volume part the ray's segment passes through, which trace it against their
-// iso-surfaces only (World::kVolumeMask) and send back what they found (hits only). A stage is
-// three steps — ask, answer, gather — that every rank takes for each flight of a slot in the same
-// order (the slots in any order: a slot's messages pair up by their tag and order alone).
-// Messages go point to point and never block the sender, so a rank waits only when no slot has
-// the messages its next step needs.
+// iso-surfaces only (World::kVolumeMask) and send back what they found (hits only). Asking and
+// answering are independent: a rank answers whatever rays have come whenever it looks (serve),
+// between steps of its own, and a flight waits only for the answers of the ranks it asked. So a
+// rank never waits for another rank's own work, only for its answers; messages go only to the
+// ranks a stage's rays reach, point to point, never blocking the sender.
 class RankTracer {
  public:
   RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
       : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_cell(world.largestCell()),
-        m_lower(size_t(ranks)), m_upper(size_t(ranks)) {
+        m_lower(size_t(ranks)), m_upper(size_t(ranks)), m_asks(size_t(ranks)) {
     // Every rank's volume box, on every rank.
     Vec3d lo, hi;
     world.volumeBounds(lo, hi);
@@ -68,22 +69,21 @@ class RankTracer {
     }
   }
 
-  // Step 1: this rank traces its batch whole and sends each to the other ranks whose volume box its
-  // segment reaches: a shadow ray only if nothing here blocks it; a closest-hit ray that hit here
-  // shortened to two cell diagonals past the hit. (The others need only look before the hit, but
-  // their walks must cut the ray's cells where the single process cuts them, at the ray's end, or
-  // a hit's bits could change: no cell of a closer hit reaches that far, and they hold no brick the
-  // shortened ray does not reach either way.) Camera rays go in the batch's packets, as in one
-  // process. `more`: whether this rank's round still has paths asking for rays (sent with a shadow
-  // stage's rays; the round ends when no rank's has).
-  void ask(Flight& f, int slot, bool more, TraversalStats& stats) {
+  // This rank traces the flight's batch whole and sends each ray to the other ranks whose volume
+  // box its segment reaches: a shadow ray only if nothing here blocks it; a closest-hit ray that
+  // hit here shortened to two cell diagonals past the hit. (The others need only look before the
+  // hit, but their walks must cut the ray's cells where the single process cuts them, at the ray's
+  // end, or a hit's bits could change: no cell of a closer hit reaches that far, and they hold no
+  // brick the shortened ray does not reach either way.) Camera rays go in the batch's packets, as
+  // in one process. `slot` names the flight in the messages; f.waiting counts the ranks asked.
+  void ask(Flight& f, int slot, TraversalStats& stats) {
     RayBatch& b = f.batch;
     const size_t n = b.size();
+    ++f.stage;
     f.from.assign(n, m_rank);
     parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
-    f.asks.resize(size_t(m_ranks));
-    const int32_t header[2] = {more ? 1 : 0, 0};
-    for (std::vector<char>& bytes : f.asks) bytes.assign(reinterpret_cast<const char*>(header), reinterpret_cast<const char*>(header + 2));
+    const AskHeader header{int32_t(slot), f.stage, b.shadow ? 1 : 0};
+    for (std::vector<char>& bytes : m_asks) bytes.clear();
     for (size_t i = 0; i < n; ++i) {
       if (b.shadow && b.found[i]) continue;
       Asked a{b.rays[i], int(i)};
@@ -93,106 +93,61 @@ class RankTracer {
       }
       for (int q = 0; q < m_ranks; ++q)
         if (q != m_rank && reaches(a.ray, q)) {
-          append(f.asks[size_t(q)], a);
+          std::vector<char>& bytes = m_asks[size_t(q)];
+          if (bytes.empty()) append(bytes, header);
+          append(bytes, a);
           raysSent += 1;
         }
     }
     raysAsked += double(n);
+    f.waiting = 0;
     for (int q = 0; q < m_ranks; ++q)
-      if (q != m_rank) post(f.asks[size_t(q)], q, kAsk + 2 * slot);
-  }
-
-  // Step 2: the rays the other ranks sent in this stage, traced against this rank's iso-surfaces,
-  // and what they found sent back. False when this is a shadow stage and no rank's round had paths
-  // asking for rays (`more`, this rank's): the round is over and nothing was sent.
-  bool answer(Flight& f, int slot, bool more, TraversalStats& stats) {
-    f.theirs.clear();
-    f.theirIndex.clear();
-    f.theirRank.clear();
-    bool any = more;
-    for (int q = 0; q < m_ranks; ++q) {
-      if (q == m_rank) continue;
-      const std::vector<char> bytes = receiveFrom(q, kAsk + 2 * slot);
-      int32_t header[2];
-      if (bytes.size() < sizeof(header) || (bytes.size() - sizeof(header)) % sizeof(Asked) != 0)
-        MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
-      std::memcpy(header, bytes.data(), sizeof(header));
-      any = any || header[0] != 0;
-      for (size_t at = sizeof(header); at < bytes.size(); at += sizeof(Asked)) {
-        Asked a;
-        std::memcpy(static_cast<void*>(&a), bytes.data() + at, sizeof(Asked));
-        f.theirs.push_back(a.ray);
-        f.theirIndex.push_back(a.index);
-        f.theirRank.push_back(q);
+      if (!m_asks[size_t(q)].empty()) {
+        post(m_asks[size_t(q)], q, kAsk);
+        ++f.waiting;
       }
-    }
-    const bool shadow = f.batch.shadow;
-    if (shadow && !any) return false;
-    raysReceived += double(f.theirs.size());
-    std::vector<Found> answers(f.theirs.size());
-    parallel(f.theirs.size(), stats, [&](size_t k, TraversalStats& s) {
-      Ray r = f.theirs[k];
-      r.mask = World::kVolumeMask;
-      answers[k].index = f.theirIndex[k];
-      answers[k].found = shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
-    });
-    // Back to the rank that asked: the hits found with the index of the ray in its flight (a
-    // shadow ray: the index alone, of the rays found blocked).
-    f.backs.resize(size_t(m_ranks));
-    for (std::vector<char>& bytes : f.backs) bytes.clear();
-    for (size_t k = 0; k < answers.size(); ++k) {
-      if (!answers[k].found) continue;
-      std::vector<char>& bytes = f.backs[size_t(f.theirRank[k])];
-      if (shadow)
-        append(bytes, answers[k].index);
-      else
-        append(bytes, answers[k]);
-    }
-    for (int q = 0; q < m_ranks; ++q)
-      if (q != m_rank) post(f.backs[size_t(q)], q, kAsk + 1 + 2 * slot);
-    return true;
   }
 
-  // Step 3: the other ranks' answers. Then the batch's found and hits are those of the whole
-  // scene: the closest hit, of equal ones the lowest rank's; a shadow ray blocked if any rank
-  // blocks it.
-  void gather(Flight& f, int slot) {
-    RayBatch& b = f.batch;
-    const size_t n = b.size();
-    for (int q = 0; q < m_ranks; ++q) {
-      if (q == m_rank) continue;
-      const std::vector<char> bytes = receiveFrom(q, kAsk + 1 + 2 * slot);
-      const size_t size = b.shadow ? sizeof(int) : sizeof(Found);
-      if (bytes.size() % size != 0) MPI_Abort(MPI_COMM_WORLD, 1);
-      for (size_t at = 0; at < bytes.size(); at += size) {
-        Found a;
-        if (b.shadow)
-          std::memcpy(&a.index, bytes.data() + at, sizeof(int));
+  // Answers every ray another rank has asked about so far (traced against this rank's
+  // iso-surfaces), and takes every answer that has come to this rank's flights (`flights[slot]`):
+  // a closest hit kept if it is closer (of equal ones the lower rank's), a shadow ray blocked if
+  // any rank blocks it. Whether anything came.
+  bool serve(std::vector<Flight*>& flights, TraversalStats& stats) {
+    bool any = false;
+    for (bool came = true; came;) {
+      came = false;
+      for (int tag : {kAsk, kAnswer}) {
+        int flag = 0;
+        MPI_Status status;
+        MPI_Iprobe(MPI_ANY_SOURCE, tag, MPI_COMM_WORLD, &flag, &status);
+        if (!flag) continue;
+        came = any = true;
+        if (tag == kAsk)
+          answer(status, stats);
         else
-          std::memcpy(static_cast<void*>(&a), bytes.data() + at, sizeof(Found));
-        const size_t i = size_t(a.index);
-        if (a.index < 0 || i >= n) MPI_Abort(MPI_COMM_WORLD, 1);
-        if (b.shadow) {
-          b.found[i] = 1;
-        } else if (!b.found[i] || a.hit.t < b.hits[i].t || (a.hit.t == b.hits[i].t && q < f.from[i])) {
-          b.hits[i] = a.hit;
-          b.found[i] = 1;
-          f.from[i] = q;
-        }
+          take(status, flights);
       }
+    }
+    return any;
+  }
+
+  // Waits for, and answers, the other ranks until every rank has finished its flights of the pass
+  // (this one's are: no flight is waiting). Collective.
+  void finishPass(std::vector<Flight*>& flights, TraversalStats& stats) {
+    MPI_Request done;
+    MPI_Ibarrier(MPI_COMM_WORLD, &done);
+    for (;;) {
+      const auto t0 = Clock::now();
+      int flag = 0;
+      MPI_Test(&done, &flag, MPI_STATUS_IGNORE);
+      if (flag) {
+        waitSeconds += since(t0);
+        return;
+      }
+      if (!serve(flights, stats)) waited(t0);
     }
   }
 
-  // Whether the messages the next step of slot `slot` needs (`back`: answers, for gather; or
-  // rays, for answer) have come from every other rank.
-  bool arrived(int slot, bool back) {
-    for (int q = 0; q < m_ranks; ++q) {
-      int flag = 1;
-      if (q != m_rank) MPI_Iprobe(q, kAsk + (back ? 1 : 0) + 2 * slot, MPI_COMM_WORLD, &flag, MPI_STATUS_IGNORE);
-      if (!flag) return false;
-    }
-    return true;
-  }
   // Time spent looking for messages that had not come (`since`: when the look began).
   void waited(Clock::time_point since) {
     m_outbox.progress();
@@ -212,7 +167,12 @@ class RankTracer {
   // tiles. A rank's camera rays then mostly find their hits in its own part and go nowhere else
   // (dealt t mod N, half of them entered the other rank's box first), and every rank has about as
   // many tiles of each kind.
-  std::vector<int> tileOwners(const TileRenderer& tiles, const Camera& camera) const {
+  // (Between passes the tiles are dealt again by what they cost: dealTilesByCost.)
+  struct Deal {
+    std::vector<int> owner;  // the rank of each tile
+    std::vector<int> first;  // the rank whose box the tile's centre ray enters first, or -1
+  };
+  Deal tileOwners(const TileRenderer& tiles, const Camera& camera) const {
     const int n = tiles.tiles();
     std::vector<int> owner(size_t(n), -1), first(size_t(n), -1), count(size_t(m_ranks), 0);
     int seeing = 0;  // tiles whose centre ray passes through a box
@@ -243,16 +203,14 @@ class RankTracer {
         owner[size_t(t)] = q;
         ++count[size_t(q)];
       }
-    return owner;
+    return {owner, first};
   }
 
-  // Whether any rank says yes (collective).
-  bool anyRank(bool mine) {
+  // Every rank's `values` summed, on every rank (collective; its time counts as waiting).
+  void sumOverRanks(std::vector<double>& values) {
     const auto t0 = Clock::now();
-    int v = mine ? 1 : 0, all = 0;
-    MPI_Allreduce(&v, &all, 1, MPI_INT, MPI_LOR, MPI_COMM_WORLD);
+    MPI_Allreduce(MPI_IN_PLACE, values.data(), int(values.size()), MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD);
     waitSeconds += since(t0);
-    return all != 0;
   }
 
   // Rays of this rank's paths, their copies sent to other ranks, the rays other ranks sent it,
@@ -271,11 +229,24 @@ class RankTracer {
     Ray ray;
     int index;
   };
+  // What an ask (then Asked rays) and an answer (then Found hits, or a shadow stage's indices of
+  // the rays found blocked) begin with: the asking rank's flight and its stage.
+  struct AskHeader {
+    int32_t slot;
+    uint32_t stage;
+    int32_t shadow;
+  };
 
   template <typename T>
   static void append(std::vector<char>& bytes, const T& value) {
     const char* p = reinterpret_cast<const char*>(&value);
     bytes.insert(bytes.end(), p, p + sizeof(T));
+  }
+  template <typename T>
+  static T read(const std::vector<char>& bytes, size_t at) {
+    T value;
+    std::memcpy(static_cast<void*>(&value), bytes.data() + at, sizeof(T));
+    return value;
   }
 
   void post(std::vector<char>& bytes, int to, int tag) {
@@ -285,13 +256,67 @@ class RankTracer {
     bytes.clear();
   }
 
-  std::vector<char> receiveFrom(int q, int tag) {
-    const auto t0 = Clock::now();
-    MPI_Status status;
-    MPI_Probe(q, tag, MPI_COMM_WORLD, &status);
-    std::vector<char> bytes = receive(status);
-    waitSeconds += since(t0);
-    return bytes;
+  // The rays of the ask `status` announced, traced against this rank's iso-surfaces, and what
+  // they found sent back to the asking rank.
+  void answer(const MPI_Status& status, TraversalStats& stats) {
+    const std::vector<char> bytes = receive(status);
+    if (bytes.size() < sizeof(AskHeader) || (bytes.size() - sizeof(AskHeader)) % sizeof(Asked) != 0)
+      MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
+    const AskHeader header = read<AskHeader>(bytes, 0);
+    const size_t n = (bytes.size() - sizeof(AskHeader)) / sizeof(Asked);
+    raysReceived += double(n);
+    std::vector<Found> answers(n);
+    parallel(n, stats, [&](size_t k, TraversalStats& s) {
+      const Asked a = read<Asked>(bytes, sizeof(AskHeader) + k * sizeof(Asked));
+      Ray r = a.ray;
+      r.mask = World::kVolumeMask;
+      answers[k].index = a.index;
+      answers[k].found = header.shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
+    });
+    // The hits found with the index of the ray in the asker's flight (a shadow ray: the index
+    // alone, of the rays found blocked).
+    std::vector<char> back;
+    append(back, header);
+    for (const Found& a : answers) {
+      if (!a.found) continue;
+      if (header.shadow)
+        append(back, a.index);
+      else
+        append(back, a);
+    }
+    post(back, status.MPI_SOURCE, kAnswer);
+  }
+
+  // The answer `status` announced, into the flight it answers.
+  void take(const MPI_Status& status, std::vector<Flight*>& flights) {
+    const std::vector<char> bytes = receive(status);
+    const int q = status.MPI_SOURCE;
+    if (bytes.size() < sizeof(AskHeader)) MPI_Abort(MPI_COMM_WORLD, 1);
+    const AskHeader header = read<AskHeader>(bytes, 0);
+    if (header.slot < 0 || size_t(header.slot) >= flights.size()) MPI_Abort(MPI_COMM_WORLD, 1);
+    Flight& f = *flights[size_t(header.slot)];
+    RayBatch& b = f.batch;
+    const size_t size = b.shadow ? sizeof(int) : sizeof(Found);
+    if (header.stage != f.stage || (header.shadow != 0) != b.shadow || f.waiting <= 0 ||
+        (bytes.size() - sizeof(AskHeader)) % size != 0)
+      MPI_Abort(MPI_COMM_WORLD, 1);
+    for (size_t at = sizeof(AskHeader); at < bytes.size(); at += size) {
+      Found a;
+      if (b.shadow)
+        a.index = read<int>(bytes, at);
+      else
+        a = read<Found>(bytes, at);
+      const size_t i = size_t(a.index);
+      if (a.index < 0 || i >= b.size()) MPI_Abort(MPI_COMM_WORLD, 1);
+      if (b.shadow) {
+        b.found[i] = 1;
+      } else if (!b.found[i] || a.hit.t < b.hits[i].t || (a.hit.t == b.hits[i].t && q < f.from[i])) {
+        b.hits[i] = a.hit;
+        b.found[i] = 1;
+        f.from[i] = q;
+      }
+    }
+    --f.waiting;
   }
 
   // Whether the segment of `r` passes through rank q's volume box (padded for rounding), and
@@ -334,23 +359,133 @@ class RankTracer {
   int m_rank, m_ranks;
   double m_cell;  // World::largestCell
   std::vector<Vec3d> m_lower, m_upper;
+  std::vector<std::vector<char>> m_asks;  // a stage's rays for each rank, being written
   Outbox m_outbox;
 };
 
 // A round of paths: a pass's samples of a run of this rank's pixels (a Wave), in one slot of the
-// pipeline. Its next step: start (the slot's next round, if any, and its camera rays), answer (the
-// other ranks' rays of its flight), gather (their answers, then the paths' next stage); idle when
-// the slot has no more rounds in the pass.
+// pipeline. Its next step: start (the slot's next round, if any, and its camera rays), wait (for
+// the answers to its flight's rays), or idle (the slot has no more rounds in the pass).
 struct Round {
-  enum Step { kStart, kAnswer, kGather, kIdle } step = kIdle;
+  enum Step { kStart, kWait, kIdle } step = kIdle;
   size_t index = 0;       // of the round in the pass: slot k takes rounds k, k + kSlots, ...
-  bool more = false;      // paths still asking for rays (this rank's)
   size_t p0 = 0, p1 = 0;  // its pixels, of this rank's
+  double seconds = 0;     // spent on its steps so far (this rank's own work: not the answers)
   Wave wave;
   Flight flight;
 };
 
+// This rank's tiles (in tile order), their pixels in packet order tile by tile, the tile of each
+// pixel and where its sums are: each tile's sums are a block of their own, in packet order, so a
+// tile dealt to another rank takes its block along and nothing else moves (rebuilding one array
+// of every pixel's sums cost ~0.1 s a pass: fresh pages are dear on a VM).
+struct RankTiles {
+  std::vector<int> tiles;
+  std::vector<Wave::Pixel> pixels;
+  std::vector<int> tileOf;
+  std::vector<PixelSums*> sums;
+  std::vector<std::unique_ptr<PixelSums[]>> blocks;  // by tile index: its sums, if this rank's
+
+  // The tiles `owner` gives `rank`, with their sums zeroed.
+  RankTiles(const TileRenderer& renderer, const std::vector<int>& owner, int rank) : blocks(size_t(renderer.tiles())) {
+    for (int tile = 0; tile < renderer.tiles(); ++tile)
+      if (owner[size_t(tile)] == rank) blocks[size_t(tile)] = std::make_unique<PixelSums[]>(size_t(renderer.rect(tile).pixels()));
+    list(renderer);
+  }
+
+  // Dealt again (`before` the owners so far, `after` the new ones): every tile this rank gives
+  // away goes to its new rank with its sums (one message a tile, in tile order), every tile it
+  // gets comes with its sums from the rank that had it (collective among the ranks concerned).
+  void redeal(const TileRenderer& renderer, const std::vector<int>& before, const std::vector<int>& after, int rank) {
+    Outbox outbox;
+    for (int tile : tiles) {
+      if (after[size_t(tile)] == rank) continue;
+      const char* p = reinterpret_cast<const char*>(blocks[size_t(tile)].get());
+      outbox.send(std::vector<char>(p, p + size_t(renderer.rect(tile).pixels()) * sizeof(PixelSums)), after[size_t(tile)],
+                  kMoved);
+    }
+    for (int tile = 0; tile < renderer.tiles(); ++tile) {
+      if (after[size_t(tile)] != rank || before[size_t(tile)] == rank) continue;
+      const size_t n = size_t(renderer.rect(tile).pixels());
+      MPI_Status status;
+      MPI_Probe(before[size_t(tile)], kMoved, MPI_COMM_WORLD, &status);
+      const std::vector<char> bytes = receive(status);
+      if (bytes.size() != n * sizeof(PixelSums)) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it)
+      blocks[size_t(tile)] = std::make_unique<PixelSums[]>(n);
+      std::memcpy(static_cast<void*>(blocks[size_t(tile)].get()), bytes.data(), bytes.size());
+    }
+    outbox.drain();
+    for (int tile : tiles)
+      if (after[size_t(tile)] != rank) blocks[size_t(tile)].reset();
+    list(renderer);
+  }
+
+ private:
+  // The lists, from the blocks this rank holds.
+  void list(const TileRenderer& renderer) {
+    tiles.clear();
+    pixels.clear();
+    tileOf.clear();
+    sums.clear();
+    for (int tile = 0; tile < renderer.tiles(); ++tile) {
+      PixelSums* block = blocks[size_t(tile)].get();
+      if (!block) continue;
+      tiles.push_back(tile);
+      forEachPixelInPacketOrder(renderer.rect(tile), [&](int x, int y) {
+        pixels.emplace_back(x, y);
+        tileOf.push_back(tile);
+        sums.push_back(block++);
+      });
+    }
+  }
+};
+
+// The test hook ISOTRACE_TEST_REDEAL=rotate: every tile goes to the next rank after every pass
+// (tests/mpi_test.cpp: the image stays the same bits however often the tiles move).
+bool rotateTilesForTest() {
+  const char* v = std::getenv("ISOTRACE_TEST_REDEAL");
+  return v && std::string(v) == "rotate";
+}
+
 }  // namespace
+
+std::vector<int> dealTilesByCost(std::vector<int> owner, const std::vector<int>& first, const std::vector<double>& cost,
+                                 const std::vector<double>& busy) {
+  const size_t ranks = busy.size();
+  if (ranks < 2) return owner;
+  double mean = 0;
+  for (double b : busy) mean += b / double(ranks);
+  if (!(mean > 0) || !(*std::max_element(busy.begin(), busy.end()) > 1.03 * mean)) return owner;
+  std::vector<double> load = busy;
+  // The ranks by load, busiest first (the lower rank of equal ones).
+  std::vector<int> order(ranks);
+  for (size_t r = 0; r < ranks; ++r) order[r] = int(r);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return load[size_t(a)] > load[size_t(b)]; });
+  // Each rank's tiles, the costliest first (the lower index of equal ones).
+  std::vector<int> byCost(owner.size());
+  for (size_t t = 0; t < owner.size(); ++t) byCost[t] = int(t);
+  std::stable_sort(byCost.begin(), byCost.end(), [&](int a, int b) { return cost[size_t(a)] > cost[size_t(b)]; });
+  std::vector<std::vector<int>> tilesOf(ranks);
+  for (int t : byCost)
+    if (owner[size_t(t)] >= 0 && size_t(owner[size_t(t)]) < ranks) tilesOf[size_t(owner[size_t(t)])].push_back(t);
+  for (int d : order) {
+    for (auto q = order.rbegin(); q != order.rend() && load[size_t(d)] > mean; ++q) {
+      if (!(load[size_t(*q)] < mean)) break;
+      for (int kind = 0; kind < 2; ++kind)
+        for (int t : tilesOf[size_t(d)]) {
+          const double gap = std::min(load[size_t(d)] - mean, mean - load[size_t(*q)]);
+          const double c = cost[size_t(t)];
+          const int f = first[size_t(t)];
+          const bool ofKind = kind == 0 ? f == *q : f < 0;
+          if (owner[size_t(t)] != d || !ofKind || !(c > 0) || c > gap) continue;
+          owner[size_t(t)] = *q;
+          load[size_t(d)] -= c;
+          load[size_t(*q)] += c;
+        }
+    }
+  }
+  return owner;
+}
 
 RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                      const RenderOptions& options, Film& film, Film* direct, RankFigures* figures) {
@@ -361,17 +496,12 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   RankTracer tracer(world, arena, rank, ranks);
   tbb::enumerable_thread_specific<RayCounters> counters;
   RayCounters traced;  // the traversal of the rays this rank traced and answered
-  // The tiles this rank rendered, and their sums (in packet order, forEachPixelInPacketOrder).
-  std::vector<int> mine;
-  std::vector<PixelSums> sums;
-  std::vector<Wave::Pixel> pixels;  // this rank's pixels (x, y), tile by tile; sums alike
-  const std::vector<int> owner = tracer.tileOwners(tiles, camera);
-  for (int tile = 0; tile < tiles.tiles(); ++tile) {
-    if (owner[size_t(tile)] != rank) continue;
-    mine.push_back(tile);
-    forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { pixels.emplace_back(x, y); });
-  }
-  sums.resize(pixels.size());
+  // The tiles this rank renders (dealt before the frame the same way on every rank, and again
+  // between passes by what they cost), their pixels and sums (in packet order).
+  const RankTracer::Deal deal = tracer.tileOwners(tiles, camera);
+  std::vector<int> owner = deal.owner;
+  RankTiles mine(tiles, owner, rank);
+  int movedMine = 0;  // tiles this rank handed to others
   // Rank 0's frame, which gathers every rank's tiles. Both are allocated (and zeroed) before the
   // frame's clock starts, as renderFrame allocates its sums: the render seconds of one process and
   // of the ranks count the same work.
@@ -388,139 +518,149 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   };
   // The wavefront flow's stages (a Wave's, as TileRenderer::renderPassWavefront takes them) for
   // rounds of paths: camera rays, then shadow rays and continuation rays, until no path of the
-  // round on any rank asks for one. A pass goes through this rank's pixels in rounds of kPathsPerRound paths (as many rounds
-  // on every rank: the busiest one's), kSlots rounds in flight: a rank takes the next step of any
-  // slot whose messages have come, so that while the other ranks answer one round's rays it traces
-  // another's. All tiles take a pass (1, 1, 2, 4, 8, 16, 16, ... samples, as in one process) before
-  // any takes the next, so that a stop request, honoured after each pass (once the first is done),
-  // leaves every pixel sampled. (One round of 8,192 paths at a time, every rank in lockstep: the
-  // exchanges, whose cost is mostly per stage, wanted many rays each — 2,048: twice as long in
-  // them; 32,768: the paths left the caches. docs/BENCHMARKS.md, "Data-parallel rendering".)
-  constexpr int kSlots = 4;
+  // round asks for one. A pass goes through this rank's pixels in rounds of kPathsPerRound paths,
+  // kSlots rounds in flight: while the other ranks answer one round's rays this rank traces
+  // another's, and it answers their rays between its own steps. All tiles take a pass (1, 1, 2,
+  // 4, 8, 16, 16, ... samples, as in one process) before any takes the next, so that a stop
+  // request, honoured after each pass (once the first is done), leaves every pixel sampled. (The
+  // exchanges, whose cost is mostly per stage, want many rays each: 2,048 paths a round, 4 in
+  // flight; docs/BENCHMARKS.md, "Data-parallel rendering" and "Scale-out".)
+  constexpr int kSlots = 8;
   constexpr int kPathsPerRound = 2048;
   std::vector<Round> slots(kSlots);
-  const size_t mostPixels = size_t((tiles.tiles() + ranks - 1) / ranks) * TileRenderer::kTile * TileRenderer::kTile;  // (share)
+  std::vector<Flight*> flights;
+  for (Round& round : slots) flights.push_back(&round.flight);
+  const int n = tiles.tiles();
+  // What this rank's own work on each of its tiles cost in the pass (the seconds of its rounds'
+  // steps, shared among their pixels), for dealing the tiles again before the next.
+  std::vector<double> tileSeconds(size_t(n), 0.0);
   int s0 = 0;
   for (int pass = 0; s0 < options.spp; ++pass) {
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp), ns = s1 - s0;
     const size_t maxPixels = std::max<size_t>(1, size_t(kPathsPerRound) / size_t(ns));
-    const size_t rounds = (mostPixels + maxPixels - 1) / maxPixels;
+    const size_t rounds = (mine.pixels.size() + maxPixels - 1) / maxPixels;
+    const auto passStart = Clock::now();
+    const double waitedBefore = tracer.waitSeconds;
     for (int k = 0; k < kSlots; ++k) {
       slots[size_t(k)].step = Round::kStart;
       slots[size_t(k)].index = size_t(k);
     }
-    auto finish = [&](Round& round) {
-      round.wave.finish([&](size_t i) -> PixelSums& { return sums[round.p0 + i]; });
-    };
-    auto begin = [&](Round& round) {
-      round.p0 = std::min(pixels.size(), round.index * maxPixels);
-      round.p1 = std::min(pixels.size(), round.p0 + maxPixels);
-      round.wave.start(camera, integrator, options, pixels.data() + round.p0, round.p1 - round.p0, s0, s1);
-      round.wave.collect(round.flight.batch);
-    };
-    // The answers to the round's last stage, then its next stage: shadow rays after closest-hit
-    // rays (or the round's end: see RankTracer::answer), closest-hit rays after shadow rays.
+    // The round's next stage asked of the ranks, or, when no path asks for a ray, the round's
+    // samples added to its pixels' sums and the slot on to its next round.
     auto advance = [&](Round& round, int slot) {
-      tracer.gather(round.flight, slot);
-      deliver(round);
-      if (!round.flight.batch.shadow) round.more = round.wave.pending();
+      if (!round.wave.pending()) {
+        round.wave.finish([&](size_t i) -> PixelSums& { return *mine.sums[round.p0 + i]; });
+        round.index += kSlots;
+        round.step = Round::kStart;
+        return true;
+      }
       round.wave.collect(round.flight.batch);
+      tracer.ask(round.flight, slot, traced.traversal);
+      round.step = Round::kWait;
+      return false;
     };
     for (;;) {
       const auto look = Clock::now();
-      bool open = false, stepped = false;
+      bool open = false, stepped = tracer.serve(flights, traced.traversal);
       for (int k = 0; k < kSlots; ++k) {
         Round& round = slots[size_t(k)];
         if (round.step == Round::kIdle) continue;
         open = true;
+        if (round.step == Round::kWait && round.flight.waiting > 0) continue;
+        const auto t0 = Clock::now();
+        bool done = false;
         if (round.step == Round::kStart) {
           if (round.index >= rounds) {
             round.step = Round::kIdle;
             continue;
           }
-          begin(round);
-        } else if (round.step == Round::kAnswer) {
-          if (!tracer.arrived(k, false)) continue;
-          stepped = true;
-          if (tracer.answer(round.flight, k, round.more, traced.traversal)) {
-            round.step = Round::kGather;
-          } else {  // the round is over on every rank
-            finish(round);
-            round.index += kSlots;
-            round.step = Round::kStart;
-          }
-          continue;
-        } else {
-          if (!tracer.arrived(k, true)) continue;
-          advance(round, k);
+          round.p0 = round.index * maxPixels;
+          round.p1 = std::min(mine.pixels.size(), round.p0 + maxPixels);
+          round.seconds = 0;
+          round.wave.start(camera, integrator, options, mine.pixels.data() + round.p0, round.p1 - round.p0, s0, s1);
+        } else {  // every rank asked has answered: the stage's hits to its paths
+          deliver(round);
+        }
+        const size_t p0 = round.p0, p1 = round.p1;
+        done = advance(round, k);
+        round.seconds += since(t0);
+        if (done) {  // what the round's own work cost, to its pixels' tiles
+          const double each = round.seconds / double(std::max<size_t>(1, p1 - p0));
+          for (size_t i = p0; i < p1; ++i) tileSeconds[size_t(mine.tileOf[i])] += each;
         }
         stepped = true;
-        tracer.ask(round.flight, k, round.more, traced.traversal);
-        round.step = Round::kAnswer;
+        break;  // (then the other ranks' rays that came meanwhile)
       }
       if (!open) break;
       if (!stepped) tracer.waited(look);
     }
+    tracer.finishPass(flights, traced.traversal);
     s0 = s1;
-    if (tracer.anyRank(stopRequested())) break;  // any rank's request: every rank stops here
+    // Every rank's costs of the pass and whether any rank was asked to stop, in one collective.
+    std::vector<double> shared(size_t(n + ranks + 1), 0.0);
+    for (int tile : mine.tiles) shared[size_t(tile)] = tileSeconds[size_t(tile)];
+    shared[size_t(n + rank)] = since(passStart) - (tracer.waitSeconds - waitedBefore);
+    shared[size_t(n + ranks)] = stopRequested() ? 1 : 0;
+    tracer.sumOverRanks(shared);
+    if (shared[size_t(n + ranks)] > 0) break;  // any rank's request: every rank stops here
+    std::fill(tileSeconds.begin(), tileSeconds.end(), 0.0);
+    if (s0 >= options.spp) break;
+    std::vector<int> next(owner.size());
+    if (rotateTilesForTest()) {
+      for (size_t t = 0; t < owner.size(); ++t) next[t] = (owner[t] + 1) % ranks;
+    } else {
+      next = dealTilesByCost(owner, deal.first, std::vector<double>(shared.begin(), shared.begin() + n),
+                             std::vector<double>(shared.begin() + n, shared.begin() + n + ranks));
+    }
+    if (next == owner) continue;
+    const auto t0 = Clock::now();
+    for (int tile : mine.tiles) movedMine += next[size_t(tile)] != rank;
+    mine.redeal(tiles, owner, next, rank);
+    owner = std::move(next);
+    tracer.waitSeconds += since(t0);  // (the sums in flight: the ranks wait for each other)
   }
   // Every rank knows whether the frame stopped short (a sequence then ends on every rank).
   const bool stoppedShort = s0 < options.spp;
   tracer.drain();
-
-
 
   // Rank 0 gathers every rank's tiles.
   RenderResult result;
   RayCounters mineCounters = traced;
   for (const RayCounters& c : counters) mineCounters.add(c);
   sendCounters(mineCounters, result.counters, 0);
-  // Rank by rank, point to point, in pieces of at most 64 MiB (a large image's sums pass 2 GiB,
-  // MPI's counts are int), rank 0 placing each tile's pixels straight into the frame's sums.
-  constexpr size_t kChunk = (size_t(64) << 20) / sizeof(PixelSums);
-  auto place = [&](const std::vector<int>& ids, auto&& next) {  // next(): the next pixel's sums
-    for (int tile : ids)
-      forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { frame[size_t(y) * size_t(w) + size_t(x)] = next(); });
+  // Rank by rank, point to point, a tile's sums a message, rank 0 placing each tile's pixels
+  // straight into the frame's sums.
+  auto place = [&](int tile, const PixelSums* block) {
+    forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { frame[size_t(y) * size_t(w) + size_t(x)] = *block++; });
   };
   if (rank == 0) {
-    size_t at = 0;
-    place(mine, [&] { return sums[at++]; });
+    for (int tile : mine.tiles) place(tile, mine.blocks[size_t(tile)].get());
+    std::vector<PixelSums> block(size_t(TileRenderer::kTile) * size_t(TileRenderer::kTile));
     for (int q = 1; q < ranks; ++q) {
       int count = 0;
       MPI_Recv(&count, 1, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
       if (count < 0 || count > tiles.tiles()) job.abort(1);  // (a rank of this job sent it: cannot happen)
       std::vector<int> ids(static_cast<size_t>(count));
       MPI_Recv(ids.data(), count, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-      size_t pixelsOf = 0;
       for (int tile : ids) {
         if (tile < 0 || tile >= tiles.tiles()) job.abort(1);
-        pixelsOf += size_t(tiles.rect(tile).pixels());
+        const int n = tiles.rect(tile).pixels();
+        MPI_Recv(block.data(), int(size_t(n) * sizeof(PixelSums)), MPI_BYTE, q, kSums, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+        place(tile, block.data());
       }
-      std::vector<PixelSums> piece;
-      size_t used = 0, left = pixelsOf;
-      place(ids, [&] {
-        if (used == piece.size()) {
-          piece.resize(std::min(kChunk, left));
-          MPI_Recv(piece.data(), int(piece.size() * sizeof(PixelSums)), MPI_BYTE, q, kSums, MPI_COMM_WORLD,
-                   MPI_STATUS_IGNORE);
-          left -= piece.size();
-          used = 0;
-        }
-        return piece[used++];
-      });
     }
   } else {
-    const int count = int(mine.size());
+    const int count = int(mine.tiles.size());
     MPI_Send(&count, 1, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
-    MPI_Send(mine.data(), count, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
-    for (size_t at = 0; at < sums.size(); at += kChunk) {
-      const size_t n = std::min(kChunk, sums.size() - at);
-      MPI_Send(&sums[at], int(n * sizeof(PixelSums)), MPI_BYTE, 0, kSums, MPI_COMM_WORLD);
-    }
+    MPI_Send(mine.tiles.data(), count, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
+    for (int tile : mine.tiles)
+      MPI_Send(mine.blocks[size_t(tile)].get(), int(size_t(tiles.rect(tile).pixels()) * sizeof(PixelSums)), MPI_BYTE, 0,
+               kSums, MPI_COMM_WORLD);
   }
   result.seconds = since(start);
-  constexpr int kFigures = 5;
-  double asked[kFigures] = {tracer.raysAsked, tracer.raysSent, tracer.raysReceived, tracer.bytesSent, tracer.waitSeconds};
+  constexpr int kFigures = 6;
+  double asked[kFigures] = {tracer.raysAsked, tracer.raysSent, tracer.raysReceived, tracer.bytesSent, tracer.waitSeconds,
+                            double(movedMine)};
   std::vector<double> allAsked(static_cast<size_t>(kFigures * ranks));
   MPI_Gather(asked, kFigures, MPI_DOUBLE, allAsked.data(), kFigures, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   if (rank != 0) {
@@ -536,6 +676,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     figures->bytesSent.clear();
     figures->busySeconds.clear();
     figures->waitSeconds.clear();
+    figures->tilesMoved.clear();
     for (int q = 0; q < ranks; ++q) {
       const double* f = &allAsked[size_t(kFigures * q)];
       figures->raysAsked.push_back(f[0]);
@@ -543,6 +684,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       figures->raysReceived.push_back(f[2]);
       figures->bytesSent.push_back(f[3]);
       figures->waitSeconds.push_back(f[4]);
+      figures->tilesMoved.push_back(int(f[5]));
       figures->busySeconds.push_back(std::max(0.0, result.seconds - f[4]));
     }
   }

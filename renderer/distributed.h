@@ -72,6 +72,8 @@ struct RankFigures {
   // (rays, and hits back), and the seconds it waited for other ranks' messages (busySeconds: the
   // rest of the frame's).
   std::vector<double> raysAsked, raysSent, raysReceived, bytesSent, waitSeconds;
+  // Data-parallel: per rank, the tiles it handed to other ranks between passes (dealTilesByCost).
+  std::vector<int> tilesMoved;
   // Adds another frame's figures, rank by rank (a sequence's stats are its frames' sums).
   void add(const RankFigures& frame);
 };
@@ -82,17 +84,33 @@ struct RankFigures {
 RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 
+// Between two passes of a data-parallel frame, the tiles dealt again by what the last pass cost:
+// `owner[t]` is tile t's rank, `cost[t]` the seconds its owner spent on the tile's own paths in
+// that pass (camera rays, tracing them through its part, shading; not the answers it gave other
+// ranks), `busy[r]` rank r's busy seconds in the pass (all of its work, answers included),
+// `first[t]` the rank whose volume box the tile's centre ray enters first (-1: none). Tiles move
+// from ranks busier than the mean to ranks idler than it, each while its cost fits in the gap
+// between both ranks and the mean: first the receiver's own tiles (their rays find their hits in
+// its part), then tiles that see no volume. A tile whose rays enter another rank's box first
+// never moves there (every stage of its paths would wait for that rank's walk: measured 5-25%
+// slower, docs/BENCHMARKS.md). Nothing moves when no rank is more than 3% busier than the mean.
+// The same inputs give the same owners on every rank.
+std::vector<int> dealTilesByCost(std::vector<int> owner, const std::vector<int>& first, const std::vector<double>& cost,
+                                 const std::vector<double>& busy);
+
 // One frame of a data-parallel render ("distribution": "data"): each rank's World holds only its
 // part of each volume (SceneDesc::dataPart). Tiles go to the rank whose volume box their centre
-// ray enters first, in equal shares; a rank renders its tiles pass by pass with the wavefront
-// flow's stages, in rounds of paths of which several are in flight. At each stage a rank traces
-// its own rays whole and sends each to the ranks whose volume part it reaches (past its own hit:
-// no further than two cell diagonals), which answer against their iso-surfaces (a closest hit, or
-// whether a shadow segment is blocked); the asker keeps the closest hit (the lower rank on a tie)
-// or "blocked" if any rank is. Every brick is one rank's and a brick's answer is the single
-// process's (tests/data_parallel_test.cpp), so the image is bit for bit renderFrame's. Rank 0
-// gathers the tiles' sums. Collective; `figures` gets per rank its tiles, the rays it asked and
-// sent, the bytes it sent and the seconds it waited for messages (docs/distributed.md).
+// ray enters first, in equal shares, and are dealt again between passes by what they cost
+// (dealTilesByCost); a rank renders its tiles pass by pass with the wavefront flow's stages, in
+// rounds of paths of which several are in flight. At each stage a rank traces its own rays whole
+// and sends each to the ranks whose volume part it reaches (past its own hit: no further than two
+// cell diagonals), which answer against their iso-surfaces (a closest hit, or whether a shadow
+// segment is blocked) whenever they look, between steps of their own; the asker keeps the
+// closest hit (the lower rank on a tie) or "blocked" if any rank is. Every brick is one rank's
+// and a brick's answer is the single process's (tests/data_parallel_test.cpp), and a tile's sums
+// move with it, so the image is bit for bit renderFrame's. Rank 0 gathers the tiles' sums.
+// Collective; `figures` gets per rank its tiles, the rays it asked and sent, the bytes it sent,
+// the seconds it waited for messages and the tiles it handed over (docs/distributed.md).
 RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                      const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 

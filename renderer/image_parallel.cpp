@@ -284,7 +284,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
     if (doneRanks == size - 1) outbox.drain();
     result.counters = workers.join();
     result.seconds = since(start);
-    if (figures) *figures = RankFigures{piecesOf, busyOf, {}, {}, {}, {}, {}};
+    if (figures) *figures = RankFigures{piecesOf, busyOf, {}, {}, {}, {}, {}, {}};
     if (doneRanks == size - 1) {
       RayCounters total;
       sendCounters(result.counters, total, 0);

@@ -192,6 +192,7 @@ void RankFigures::add(const RankFigures& frame) {
   sum(raysReceived, frame.raysReceived);
   sum(bytesSent, frame.bytesSent);
   sum(waitSeconds, frame.waitSeconds);
+  sum(tilesMoved, frame.tilesMoved);
 }
 
 void MpiJob::abort(int status) const {

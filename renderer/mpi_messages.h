@@ -22,10 +22,13 @@ enum Tag : int {
   kDone = 4,     // rank -> 0: every result sent, nothing more will come
   // Data-parallel (renderFrameDataParallel), at the end of the frame:
   kTiles = 5,    // rank -> 0: how many tiles it rendered, then their indices
-  kSums = 6,     // rank -> 0: those tiles' sums, pixel by pixel, in pieces of at most 64 MiB
-  // Data-parallel, during the frame: kAsk + 2 * slot carries a stage's rays to a rank,
-  // kAsk + 1 + 2 * slot the answers back.
+  kSums = 6,     // rank -> 0: those tiles' sums, a tile a message, in the same order
+  // Data-parallel, between passes: a tile dealt to another rank, its sums (one message a tile).
+  kMoved = 7,
+  // Data-parallel, during a pass: a stage's rays asked of a rank (a flight of the asking rank,
+  // named in the message), and what that rank found (an answer to one ask).
   kAsk = 16,
+  kAnswer = 17,
 };
 
 using Clock = std::chrono::steady_clock;

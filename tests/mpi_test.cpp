@@ -17,6 +17,7 @@
 #include <iterator>
 #include <map>
 
+#include "renderer/distributed.h"
 #include "tests/test_util.h"
 
 namespace iso {
@@ -270,6 +271,67 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
       EXPECT_EQ(readExr(base + "_two" + part + ".exr"), one) << integrator << part;
     }
   }
+}
+
+// Tiles dealt again between passes (ISOTRACE_TEST_REDEAL=rotate: every tile to the next rank
+// after every pass, its sums with it): the image stays the single process's, bit for bit, on 2
+// and 3 ranks, and every tile is in the gathered frame once.
+TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", R"({"film": {"width": 56, "height": 40}, "integrator": {"type": "path", "spp": 6, "max_depth": 5},
+    "volumes": [{"file": ")" + test::dataPath("volumes/neghip_64x64x64_uint8.raw") + R"(",
+      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100}]}],
+    "materials": {"glass": {"type": "dielectric", "ior": 1.3}},
+    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}, {"type": "environment", "radiance": 0.3}]})");
+  const std::string common = " render " + dir + "/s.json --data-parallel --quiet --aov albedo,normal,depth";
+  const auto one = runIsotrace(common.substr(1) + " --threads 2 -o " + dir + "/one.exr --stats " + dir + "/one.json");
+  ASSERT_EQ(one.status, 0) << one.err;
+  const std::vector<float> reference = readExr(dir + "/one.exr");
+  ASSERT_FALSE(reference.empty());
+  for (int ranks : {2, 3}) {
+    SCOPED_TRACE(ranks);
+    const std::string out = dir + "/moved" + std::to_string(ranks);
+    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_REDEAL=rotate " + ISOTRACE_BINARY + common + " --threads 1 -o " +
+                              out + ".exr --stats " + out + ".json");
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(readExr(out + ".exr"), reference);
+    const nlohmann::json stats = readJson(out + ".json");
+    EXPECT_EQ(stats["rays"], readJson(dir + "/one.json")["rays"]);
+    // 56x40 pixels: 4x3 tiles of 16, each moved after each of the first 3 passes (1, 1, 2, 2 samples).
+    int tiles = 0, moved = 0;
+    for (int q = 0; q < ranks; ++q) {
+      tiles += stats["tiles_per_rank"][size_t(q)].get<int>();
+      moved += int(stats["tiles_moved_per_rank"][size_t(q)].get<double>());
+    }
+    EXPECT_EQ(tiles, 12) << stats.dump();
+    EXPECT_EQ(moved, 3 * 12) << stats.dump();
+  }
+}
+
+// Which tiles move between passes (dealTilesByCost): from the busier rank to the idler, the
+// receiver's own tiles (whose centre ray enters its box first) first, then tiles that see no
+// volume, each only while it fits in the gap to the mean; never a tile whose rays enter another
+// rank's box first, and nothing when the ranks are within 3% of the mean.
+TEST(Mpi, TilesDealtByCostGoToTheRankTheirRaysReachFirst) {
+  // Rank 0 busy 3 s, rank 1 1 s: 1 s to move. Tile 0 enters rank 0's box first (stays, however
+  // costly), tile 1 rank 1's (moves first), tile 2 no box (moves next while it fits), tile 3
+  // no box but costlier than what is left of the gap.
+  const std::vector<int> owner = {0, 0, 0, 0, 1, 1};
+  const std::vector<int> first = {0, 1, -1, -1, 1, -1};
+  const std::vector<double> cost = {1.5, 0.6, 0.3, 0.5, 0.4, 0.6};
+  EXPECT_EQ(dealTilesByCost(owner, first, cost, {3.0, 1.0}), (std::vector<int>{0, 1, 1, 0, 1, 1}));
+  // Within 3% of the mean: nothing moves.
+  EXPECT_EQ(dealTilesByCost(owner, first, cost, {1.02, 0.98}), owner);
+  // The other way round: rank 1 gives its no-box tile; tile 4 (rank 1's own box) stays.
+  EXPECT_EQ(dealTilesByCost(owner, first, cost, {1.0, 3.0}), (std::vector<int>{0, 0, 0, 0, 1, 0}));
+  // Three ranks: the busiest gives to both idler ones, each its own tiles first.
+  const std::vector<int> owner3 = {0, 0, 0, 0, 1, 2};
+  const std::vector<int> first3 = {1, 2, -1, 0, 1, 2};
+  const std::vector<double> cost3 = {0.9, 0.9, 0.2, 2.0, 1.0, 1.0};
+  EXPECT_EQ(dealTilesByCost(owner3, first3, cost3, {4.0, 1.0, 1.0}), (std::vector<int>{1, 2, 0, 0, 1, 2}));
+  // One rank, or no time measured: nothing moves.
+  EXPECT_EQ(dealTilesByCost({0, 0}, {-1, -1}, {1.0, 1.0}, {2.0}), (std::vector<int>{0, 0}));
+  EXPECT_EQ(dealTilesByCost(owner, first, cost, {0.0, 0.0}), owner);
 }
 
 // What a data-parallel render cannot do yet is refused in one line, alone and under mpirun.
