@@ -86,18 +86,21 @@ class RankTracer {
     for (std::vector<char>& bytes : m_asks) bytes.clear();
     for (size_t i = 0; i < n; ++i) {
       if (b.shadow && b.found[i]) continue;
-      Asked a{b.rays[i], int(i)};
+      const Ray& ray = b.rays[i];
+      float tfar = ray.tfar;
       if (!b.shadow && b.found[i]) {
-        const float reach = float(2 * m_cell / double(length(a.ray.dir)));
-        a.ray.tfar = std::min(a.ray.tfar, std::nextafter(b.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
+        const float reach = float(2 * m_cell / double(length(ray.dir)));
+        tfar = std::min(tfar, std::nextafter(b.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
       }
-      for (int q = 0; q < m_ranks; ++q)
-        if (q != m_rank && reaches(a.ray, q)) {
-          std::vector<char>& bytes = m_asks[size_t(q)];
-          if (bytes.empty()) append(bytes, header);
-          append(bytes, a);
-          raysSent += 1;
-        }
+      for (int q = 0; q < m_ranks; ++q) {
+        if (q == m_rank || !reaches(ray, tfar, q)) continue;
+        std::vector<char>& bytes = m_asks[size_t(q)];
+        if (bytes.empty()) append(bytes, header);
+        Asked a{ray, int(i)};
+        a.ray.tfar = tfar;
+        append(bytes, a);
+        raysSent += 1;
+      }
     }
     raysAsked += double(n);
     f.waiting = 0;
@@ -181,7 +184,7 @@ class RankTracer {
       const Ray ray = camera.generateRay(0.5f * float(r.x0 + r.x1), 0.5f * float(r.y0 + r.y1));
       double firstT = INFINITY, enters = 0;
       for (int q = 0; q < m_ranks; ++q)
-        if (reaches(ray, q, &enters) && enters < firstT) {
+        if (reaches(ray, ray.tfar, q, &enters) && enters < firstT) {
           first[size_t(t)] = q;
           firstT = enters;
         }
@@ -319,13 +322,13 @@ class RankTracer {
     --f.waiting;
   }
 
-  // Whether the segment of `r` passes through rank q's volume box (padded for rounding), and
-  // where it enters it (`enters`, a parameter of `r`).
-  bool reaches(const Ray& r, int q, double* enters = nullptr) const {
+  // Whether the segment of `r` up to `tfar` passes through rank q's volume box (padded for
+  // rounding), and where it enters it (`enters`, a parameter of `r`).
+  bool reaches(const Ray& r, float tfar, int q, double* enters = nullptr) const {
     const Vec3d lo = m_lower[size_t(q)], hi = m_upper[size_t(q)];
     if (!(lo.x <= hi.x)) return false;
     const Vec3d o = r.origin(), d(r.dir);
-    double t0 = r.tnear, t1 = r.tfar;
+    double t0 = r.tnear, t1 = tfar;
     for (int a = 0; a < 3; ++a) {
       if (d[a] == 0) {
         if (o[a] < lo[a] || o[a] > hi[a]) return false;
