@@ -401,11 +401,13 @@ struct RankTiles {
   // gets comes with its sums from the rank that had it (collective among the ranks concerned).
   void redeal(const TileRenderer& renderer, const std::vector<int>& before, const std::vector<int>& after, int rank) {
     Outbox outbox;
-    for (int tile : tiles) {
-      if (after[size_t(tile)] == rank) continue;
+    for (int tile = 0; tile < renderer.tiles(); ++tile) {  // (in tile order, as the receivers take them)
+      if (before[size_t(tile)] != rank || after[size_t(tile)] == rank) continue;
+      std::vector<char> bytes(sizeof(int));
+      std::memcpy(bytes.data(), &tile, sizeof(int));
       const char* p = reinterpret_cast<const char*>(blocks[size_t(tile)].get());
-      outbox.send(std::vector<char>(p, p + size_t(renderer.rect(tile).pixels()) * sizeof(PixelSums)), after[size_t(tile)],
-                  kMoved);
+      bytes.insert(bytes.end(), p, p + size_t(renderer.rect(tile).pixels()) * sizeof(PixelSums));
+      outbox.send(std::move(bytes), after[size_t(tile)], kMoved);
     }
     for (int tile = 0; tile < renderer.tiles(); ++tile) {
       if (after[size_t(tile)] != rank || before[size_t(tile)] == rank) continue;
@@ -413,27 +415,31 @@ struct RankTiles {
       MPI_Status status;
       MPI_Probe(before[size_t(tile)], kMoved, MPI_COMM_WORLD, &status);
       const std::vector<char> bytes = receive(status);
-      if (bytes.size() != n * sizeof(PixelSums)) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it)
+      int sent = -1;
+      if (bytes.size() == sizeof(int) + n * sizeof(PixelSums)) std::memcpy(&sent, bytes.data(), sizeof(int));
+      if (sent != tile) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
       blocks[size_t(tile)] = std::make_unique<PixelSums[]>(n);
-      std::memcpy(static_cast<void*>(blocks[size_t(tile)].get()), bytes.data(), bytes.size());
+      std::memcpy(static_cast<void*>(blocks[size_t(tile)].get()), bytes.data() + sizeof(int), n * sizeof(PixelSums));
     }
     outbox.drain();
     for (int tile : tiles)
       if (after[size_t(tile)] != rank) blocks[size_t(tile)].reset();
-    list(renderer);
+    list(renderer);  // (in tile order; the caller orders them by cost)
   }
 
- private:
-  // The lists, from the blocks this rank holds.
-  void list(const TileRenderer& renderer) {
+  // The lists, from the blocks this rank holds: the tiles in tile order, or the costliest first
+  // (`cost` by tile index, when known).
+  void list(const TileRenderer& renderer, const std::vector<double>& cost = {}) {
     tiles.clear();
     pixels.clear();
     tileOf.clear();
     sums.clear();
-    for (int tile = 0; tile < renderer.tiles(); ++tile) {
+    for (int tile = 0; tile < renderer.tiles(); ++tile)
+      if (blocks[size_t(tile)]) tiles.push_back(tile);
+    if (!cost.empty())
+      std::stable_sort(tiles.begin(), tiles.end(), [&](int a, int b) { return cost[size_t(a)] > cost[size_t(b)]; });
+    for (int tile : tiles) {
       PixelSums* block = blocks[size_t(tile)].get();
-      if (!block) continue;
-      tiles.push_back(tile);
       forEachPixelInPacketOrder(renderer.rect(tile), [&](int x, int y) {
         pixels.emplace_back(x, y);
         tileOf.push_back(tile);
@@ -608,19 +614,23 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     if (shared[size_t(n + ranks)] > 0) break;  // any rank's request: every rank stops here
     std::fill(tileSeconds.begin(), tileSeconds.end(), 0.0);
     if (s0 >= options.spp) break;
+    const std::vector<double> cost(shared.begin(), shared.begin() + n);
     std::vector<int> next(owner.size());
     if (rotateTilesForTest()) {
       for (size_t t = 0; t < owner.size(); ++t) next[t] = (owner[t] + 1) % ranks;
     } else {
-      next = dealTilesByCost(owner, deal.first, std::vector<double>(shared.begin(), shared.begin() + n),
-                             std::vector<double>(shared.begin() + n, shared.begin() + n + ranks));
+      next = dealTilesByCost(owner, deal.first, cost, std::vector<double>(shared.begin() + n, shared.begin() + n + ranks));
     }
-    if (next == owner) continue;
-    const auto t0 = Clock::now();
-    for (int tile : mine.tiles) movedMine += next[size_t(tile)] != rank;
-    mine.redeal(tiles, owner, next, rank);
-    owner = std::move(next);
-    tracer.waitSeconds += since(t0);  // (the sums in flight: the ranks wait for each other)
+    if (next != owner) {
+      const auto t0 = Clock::now();
+      for (int tile : mine.tiles) movedMine += next[size_t(tile)] != rank;
+      mine.redeal(tiles, owner, next, rank);
+      owner = std::move(next);
+      tracer.waitSeconds += since(t0);  // (the sums in flight: the ranks wait for each other)
+    }
+    // The costliest tiles first: the pass's last rounds are its cheapest, and the ranks finish it
+    // nearer together.
+    mine.list(tiles, cost);
   }
   // Every rank knows whether the frame stopped short (a sequence then ends on every rank).
   const bool stoppedShort = s0 < options.spp;

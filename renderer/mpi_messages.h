@@ -23,7 +23,8 @@ enum Tag : int {
   // Data-parallel (renderFrameDataParallel), at the end of the frame:
   kTiles = 5,    // rank -> 0: how many tiles it rendered, then their indices
   kSums = 6,     // rank -> 0: those tiles' sums, a tile a message, in the same order
-  // Data-parallel, between passes: a tile dealt to another rank, its sums (one message a tile).
+  // Data-parallel, between passes: a tile dealt to another rank, its index and sums (one message
+  // a tile, in tile order).
   kMoved = 7,
   // Data-parallel, during a pass: a stage's rays asked of a rank (a flight of the asking rank,
   // named in the message), and what that rank found (an answer to one ask).
