@@ -329,6 +329,14 @@ class RankTracer {
     if (!(lo.x <= hi.x)) return false;
     const Vec3d o = r.origin(), d(r.dir);
     double t0 = r.tnear, t1 = tfar;
+    if (std::isfinite(t1)) {
+      // Most segments end near their start (a hit in this rank's part): a segment whose box lies
+      // beside rank q's on some axis does not reach it (~1/4 of the slab test's instructions).
+      for (int a = 0; a < 3; ++a) {
+        const double p0 = o[a] + t0 * d[a], p1 = o[a] + t1 * d[a];
+        if (std::max(p0, p1) < lo[a] || std::min(p0, p1) > hi[a]) return false;
+      }
+    }
     for (int a = 0; a < 3; ++a) {
       if (d[a] == 0) {
         if (o[a] < lo[a] || o[a] > hi[a]) return false;
