@@ -7,13 +7,17 @@ pieces per second, the balance (busiest over idlest rank's busy seconds, from --
 busy seconds of each rank, and checks that both images are the same bits. ISOTRACE=path runs
 another build.
 
+--against OTHER: each run also renders the N ranks with another build (e.g. an older commit's), in
+turn with this build's; prints its median and this build's speed-up over it (the shared machine's
+noise hits both alike).
+
 --data-parallel: both renders with --data-parallel (the ranks each hold part of every volume
 and answer each other's rays; one process is the same render whole); also prints the rays the
 ranks asked each other about, the bytes they sent per frame and the seconds they spent in the
 exchanges.
 
 Usage: bench/mpi_scaling.py [--runs 3] [--ranks 2] [--threads 1] [--resolution 960x540]
-       [--spp 16] [--data-parallel] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
+       [--spp 16] [--data-parallel] [--against OTHER_ISOTRACE] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
 """
 import argparse
 import json
@@ -27,8 +31,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ISOTRACE = os.environ.get("ISOTRACE", os.path.join(ROOT, "build", "isotrace"))  # ISOTRACE=path: another build
 
 
-def render(prefix, scene, args, image, stats):
-    cmd = prefix + [ISOTRACE, "render", scene, "-o", image, "--quiet", "--stats", stats] + args
+def render(prefix, scene, args, image, stats, binary=None):
+    cmd = prefix + [binary or ISOTRACE, "render", scene, "-o", image, "--quiet", "--stats", stats] + args
     r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if r.returncode != 0:
         sys.exit("mpi_scaling: %s failed:\n%s" % (" ".join(cmd), r.stderr))
@@ -45,6 +49,7 @@ def main():
     parser.add_argument("--resolution", default="960x540")
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--data-parallel", action="store_true")
+    parser.add_argument("--against", help="another build's isotrace: its N-rank renders in turn with this one's")
     a = parser.parse_args()
     scenes = a.scenes or [os.path.join(ROOT, "bench", "scenes", "gyroid_ball.json")]
     mpirun = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(a.ranks)]
@@ -57,10 +62,14 @@ def main():
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as work:
         for scene in scenes:
-            one, many, pieces, balance, busy, traffic = [], [], [], [], [], []
+            one, many, pieces, balance, busy, traffic, other = [], [], [], [], [], [], []
             same = True
             for _ in range(a.runs):
                 s1 = render([], scene, args, os.path.join(work, "one.exr"), os.path.join(work, "one.json"))
+                if a.against:
+                    so = render(mpirun, scene, args, os.path.join(work, "other.exr"), os.path.join(work, "other.json"),
+                                a.against)
+                    other.append(so["seconds"]["render"])
                 sn = render(mpirun, scene, args, os.path.join(work, "many.exr"), os.path.join(work, "many.json"))
                 same = same and s1["rays"] == sn["rays"] and pixels_equal(work)
                 one.append(s1["seconds"]["render"])
@@ -81,6 +90,10 @@ def main():
                 print("  data-parallel: %d rays of all ranks' paths, %.1f MiB sent per frame, rays received per rank %s, "
                       "seconds waiting per rank %s" % (t[0], t[1] / 2**20, " / ".join("%d" % x for x in t[3]),
                                                        " / ".join("%.2f" % x for x in t[2])))
+            if other:
+                mo = statistics.median(other)
+                print("  against %s: %d ranks %.3f s (runs %s), speed-up of this build %.2f" % (
+                    a.against, a.ranks, mo, ", ".join("%.3f" % x for x in other), mo / mn))
             print("  runs: 1 process %s; %d ranks %s" % (", ".join("%.3f" % x for x in one), a.ranks,
                                                        ", ".join("%.3f" % x for x in many)), file=sys.stderr)
 
