@@ -268,7 +268,8 @@ class RankTracer {
     const AskHeader header = read<AskHeader>(bytes, 0);
     const size_t n = (bytes.size() - sizeof(AskHeader)) / sizeof(Asked);
     raysReceived += double(n);
-    std::vector<Found> answers(n);
+    if (m_answers.size() < n) m_answers.resize(n);  // (reused: each answer writes what it sends)
+    std::vector<Found>& answers = m_answers;
     parallel(n, stats, [&](size_t k, TraversalStats& s) {
       const Asked a = read<Asked>(bytes, sizeof(AskHeader) + k * sizeof(Asked));
       Ray r = a.ray;
@@ -280,7 +281,8 @@ class RankTracer {
     // alone, of the rays found blocked).
     std::vector<char> back;
     append(back, header);
-    for (const Found& a : answers) {
+    for (size_t k = 0; k < n; ++k) {
+      const Found& a = answers[k];
       if (!a.found) continue;
       if (header.shadow)
         append(back, a.index);
@@ -371,6 +373,7 @@ class RankTracer {
   double m_cell;  // World::largestCell
   std::vector<Vec3d> m_lower, m_upper;
   std::vector<std::vector<char>> m_asks;  // a stage's rays for each rank, being written
+  std::vector<Found> m_answers;            // what the rays of an ask found
   Outbox m_outbox;
 };
 
