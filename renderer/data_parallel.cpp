@@ -543,8 +543,9 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   // another's, and it answers their rays between its own steps. All tiles take a pass (1, 1, 2,
   // 4, 8, 16, 16, ... samples, as in one process) before any takes the next, so that a stop
   // request, honoured after each pass (once the first is done), leaves every pixel sampled. (The
-  // exchanges, whose cost is mostly per stage, want many rays each: 2,048 paths a round, 4 in
-  // flight; docs/BENCHMARKS.md, "Data-parallel rendering" and "Scale-out".)
+  // exchanges, whose cost is mostly per stage, want many rays each: 2,048 paths a round; 8 in
+  // flight hide the other ranks' answers better than 4, 16 no better than 8; docs/BENCHMARKS.md,
+  // "Data-parallel rendering" and "Scale-out (issue 47, third session)".)
   constexpr int kSlots = 8;
   constexpr int kPathsPerRound = 2048;
   std::vector<Round> slots(kSlots);
@@ -588,7 +589,6 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         open = true;
         if (round.step == Round::kWait && round.flight.waiting > 0) continue;
         const auto t0 = Clock::now();
-        bool done = false;
         if (round.step == Round::kStart) {
           if (round.index >= rounds) {
             round.step = Round::kIdle;
@@ -602,7 +602,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
           deliver(round);
         }
         const size_t p0 = round.p0, p1 = round.p1;
-        done = advance(round, k);
+        const bool done = advance(round, k);
         round.seconds += since(t0);
         if (done) {  // what the round's own work cost, to its pixels' tiles
           const double each = round.seconds / double(std::max<size_t>(1, p1 - p0));
