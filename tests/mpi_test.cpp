@@ -273,16 +273,23 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
   }
 }
 
+// neghip with a glass skin (iso 40) around an opaque core (iso 100), lit from above (and by
+// `moreLights`, a JSON list's further entries), on the given film and integrator.
+std::string glassNeghip(const std::string& film, const std::string& integrator, const std::string& moreLights = "") {
+  return R"({"film": )" + film + R"(, "integrator": )" + integrator + R"(,
+    "volumes": [{"file": ")" + test::dataPath("volumes/neghip_64x64x64_uint8.raw") + R"(",
+      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100}]}],
+    "materials": {"glass": {"type": "dielectric", "ior": 1.3}},
+    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5})" + moreLights + "]}";
+}
+
 // Tiles dealt again between passes (ISOTRACE_TEST_REDEAL=rotate: every tile to the next rank
 // after every pass, its sums with it): the image stays the single process's, bit for bit, on 2
 // and 3 ranks, and every tile is in the gathered frame once.
 TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
   const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", R"({"film": {"width": 56, "height": 40}, "integrator": {"type": "path", "spp": 6, "max_depth": 5},
-    "volumes": [{"file": ")" + test::dataPath("volumes/neghip_64x64x64_uint8.raw") + R"(",
-      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100}]}],
-    "materials": {"glass": {"type": "dielectric", "ior": 1.3}},
-    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}, {"type": "environment", "radiance": 0.3}]})");
+  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 56, "height": 40})", R"({"type": "path", "spp": 6, "max_depth": 5})",
+                                               R"(, {"type": "environment", "radiance": 0.3})"));
   const std::string common = " render " + dir + "/s.json --data-parallel --quiet --aov albedo,normal,depth";
   const auto one = runIsotrace(common.substr(1) + " --threads 2 -o " + dir + "/one.exr --stats " + dir + "/one.json");
   ASSERT_EQ(one.status, 0) << one.err;
@@ -376,11 +383,7 @@ TEST(Mpi, DataParallelRefusesWhatItCannotDoYet) {
 // the stats sum the frames' per-rank figures.
 TEST(Mpi, DataParallelSequencesMatchOneProcess) {
   const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 3, "max_depth": 4},
-    "volumes": [{"file": ")" + test::dataPath("volumes/neghip_64x64x64_uint8.raw") + R"(",
-      "isosurfaces": [{"value": 40, "material": "glass"}, {"value": 100}]}],
-    "materials": {"glass": {"type": "dielectric", "ior": 1.3}},
-    "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}]})");
+  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 40, "height": 30})", R"({"type": "path", "spp": 3, "max_depth": 4})"));
   struct Case {
     std::string flags;
     std::vector<std::string> parts;
