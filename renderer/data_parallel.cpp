@@ -410,6 +410,7 @@ struct RankTiles {
   // Dealt again (`before` the owners so far, `after` the new ones): every tile this rank gives
   // away goes to its new rank with its sums (one message a tile, in tile order), every tile it
   // gets comes with its sums from the rank that had it (collective among the ranks concerned).
+  // The lists are the old ones until list() is called.
   void redeal(const TileRenderer& renderer, const std::vector<int>& before, const std::vector<int>& after, int rank) {
     Outbox outbox;
     for (int tile = 0; tile < renderer.tiles(); ++tile) {  // (in tile order, as the receivers take them)
@@ -435,7 +436,6 @@ struct RankTiles {
     outbox.drain();
     for (int tile : tiles)
       if (after[size_t(tile)] != rank) blocks[size_t(tile)].reset();
-    list(renderer);  // (in tile order; the caller orders them by cost)
   }
 
   // The lists, from the blocks this rank holds: the tiles in tile order, or the costliest first

@@ -312,10 +312,7 @@ void resolveDenoiseInput(const std::vector<PixelSums>& sums, int w, int h, bool 
   }
 }
 
-}  // namespace
-
-namespace {
-
+// Whether `options` asks for the AOV layer `name`.
 bool wantsLayer(const RenderOptions& options, const char* name) {
   return std::find(options.aovs.begin(), options.aovs.end(), name) != options.aovs.end();
 }
@@ -348,12 +345,11 @@ void resolveFrame(const std::vector<PixelSums>& sums, const RenderOptions& optio
   }
   result.meanSamples = sums.empty() ? 0 : totalSamples / double(sums.size());
   // Averages; what a pixel lacks (no sample yet, or no hit for depth) is 0 / infinity.
-  auto want = [&](const char* name) { return wantsLayer(options, name); };
-  Film::Layer* albedo = want("albedo") ? &film.addLayer("albedo", {"R", "G", "B"}) : nullptr;
-  Film::Layer* normal = want("normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
-  Film::Layer* depth = want("depth") ? &film.addLayer("depth", {"Z"}) : nullptr;
-  Film::Layer* variance = want("variance") ? &film.addLayer("variance", {"R", "G", "B"}) : nullptr;
-  Film::Layer* samples = want("samples") ? &film.addLayer("samples", {"N"}) : nullptr;
+  Film::Layer* albedo = wantsLayer(options, "albedo") ? &film.addLayer("albedo", {"R", "G", "B"}) : nullptr;
+  Film::Layer* normal = wantsLayer(options, "normal") ? &film.addLayer("normal", {"X", "Y", "Z"}) : nullptr;
+  Film::Layer* depth = wantsLayer(options, "depth") ? &film.addLayer("depth", {"Z"}) : nullptr;
+  Film::Layer* variance = wantsLayer(options, "variance") ? &film.addLayer("variance", {"R", "G", "B"}) : nullptr;
+  Film::Layer* samples = wantsLayer(options, "samples") ? &film.addLayer("samples", {"N"}) : nullptr;
   if (options.alpha) film.alpha().assign(size_t(w) * h, 0.f);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {

@@ -237,24 +237,27 @@ bool World::trace(const Ray& ray, Hit& hit, TraversalStats& stats) const {
 bool World::packRays(const Ray* rays, int n, Hit* hits, bool* done, TraversalStats& stats, PacketLanes& p,
                      RTCRay8& packet) const {
   if (n < 1 || n > kPacket) throw std::logic_error("World::intersectPacket/occludedPacket: 1 to 8 rays");
+  bool any = false;
   for (int i = 0; i < kPacket; ++i) {
-    // Lanes without a ray are invalid, and fully written all the same: Embree's vector code loads
-    // every lane before it masks (valgrind's memcheck saw it branch on an unwritten one).
-    if (i >= n) packLane(Ray{}, i, packet);
     p.valid[i] = 0;
+    if (i < n) {
+      // (startInsideVolume returns a ray not spawned from an iso-surface as it is: no copy then.)
+      const Ray& start = *(p.start[i] = rays[i].fromSurface < 0 ? &rays[i] : &p.moved.emplace(i, startInsideVolume(rays[i])));
+      done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
+      if (!done[i]) {
+        if (needsLanes()) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.construct(i));
+        packLane(start, i, packet);
+        p.valid[i] = -1;
+        any = true;
+        continue;
+      }
+    }
+    // A lane Embree does not trace (no ray, or one that crossed at its start) is invalid, and
+    // fully written all the same: Embree's vector code loads every lane before it masks
+    // (valgrind's memcheck saw it branch on an unwritten one).
+    packLane(Ray{}, i, packet);
     packet.tnear[i] = 0;
     packet.tfar[i] = -INFINITY;
-  }
-  bool any = false;
-  for (int i = 0; i < n; ++i) {
-    // (startInsideVolume returns a ray not spawned from an iso-surface as it is: no copy then.)
-    const Ray& start = *(p.start[i] = rays[i].fromSurface < 0 ? &rays[i] : &p.moved.emplace(i, startInsideVolume(rays[i])));
-    done[i] = rays[i].fromSurface >= 0 && crossesAtInactiveStart(start, hits ? &hits[i] : nullptr, stats);
-    if (done[i]) continue;
-    if (needsLanes()) setLane(start, p.origin.emplace(i, start.origin()), m_surfaces, p.lanes.construct(i));
-    packLane(start, i, packet);
-    p.valid[i] = -1;
-    any = true;
   }
   return any;
 }
@@ -548,7 +551,6 @@ bool goesThrough(const Hit& hit, const Vec3f& w) {
   const float a = dot(w, hit.normal), b = dot(hit.incoming, hit.normal);
   return a != 0 && b != 0 ? (a > 0) == (b > 0) : dot(w, hit.incoming) > 0;
 }
-
 
 // A triangle hit's offset origin (offsetRayOrigin), in float: where Embree sees it.
 Vec3f offsetTriangleOrigin(const Hit& hit, const Vec3f& w) {
