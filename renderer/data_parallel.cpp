@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstddef>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
@@ -51,7 +52,7 @@ class RankTracer {
  public:
   RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
       : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_cell(world.largestCell()),
-        m_lower(size_t(ranks)), m_upper(size_t(ranks)), m_asks(size_t(ranks)) {
+        m_lower(size_t(ranks)), m_upper(size_t(ranks)), m_selected(size_t(ranks)) {
     // Every rank's volume box, on every rank.
     Vec3d lo, hi;
     world.volumeBounds(lo, hi);
@@ -82,33 +83,39 @@ class RankTracer {
     ++f.stage;
     f.from.assign(n, m_rank);
     parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
-    const AskHeader header{int32_t(slot), f.stage, b.shadow ? 1 : 0};
-    for (std::vector<char>& bytes : m_asks) bytes.clear();
+    // The rays each rank is asked about (with their ends), then each message written at once.
+    for (std::vector<Selected>& list : m_selected) list.clear();
     for (size_t i = 0; i < n; ++i) {
       if (b.shadow && b.found[i]) continue;
       const Ray& ray = b.rays[i];
       float tfar = ray.tfar;
       if (!b.shadow && b.found[i]) {
         const float reach = float(2 * m_cell / double(length(ray.dir)));
-        tfar = std::min(tfar, std::nextafter(b.hits[i].t + reach, INFINITY) * (1 + 1e-6f));
+        tfar = std::min(tfar, nextFloatUp(b.hits[i].t + reach) * (1 + 1e-6f));
       }
-      for (int q = 0; q < m_ranks; ++q) {
-        if (q == m_rank || !reaches(ray, tfar, q)) continue;
-        std::vector<char>& bytes = m_asks[size_t(q)];
-        if (bytes.empty()) append(bytes, header);
-        Asked a{ray, int(i)};
-        a.ray.tfar = tfar;
-        append(bytes, a);
-        raysSent += 1;
-      }
+      for (int q = 0; q < m_ranks; ++q)
+        if (q != m_rank && reaches(ray, tfar, q)) m_selected[size_t(q)].push_back({uint32_t(i), tfar});
     }
     raysAsked += double(n);
     f.waiting = 0;
-    for (int q = 0; q < m_ranks; ++q)
-      if (!m_asks[size_t(q)].empty()) {
-        post(m_asks[size_t(q)], q, kAsk);
-        ++f.waiting;
+    const AskHeader header{int32_t(slot), f.stage, b.shadow ? 1 : 0};
+    for (int q = 0; q < m_ranks; ++q) {
+      const std::vector<Selected>& list = m_selected[size_t(q)];
+      if (list.empty()) continue;
+      std::vector<char> bytes(sizeof(AskHeader) + list.size() * sizeof(Asked));
+      std::memcpy(bytes.data(), &header, sizeof(AskHeader));
+      char* at = bytes.data() + sizeof(AskHeader);
+      for (const Selected& sel : list) {
+        std::memcpy(at + offsetof(Asked, ray), static_cast<const void*>(&b.rays[sel.index]), sizeof(Ray));
+        std::memcpy(at + offsetof(Asked, ray) + offsetof(Ray, tfar), &sel.tfar, sizeof(float));
+        const int index = int(sel.index);
+        std::memcpy(at + offsetof(Asked, index), &index, sizeof(int));
+        at += sizeof(Asked);
       }
+      raysSent += double(list.size());
+      post(bytes, q, kAsk);
+      ++f.waiting;
+    }
   }
 
   // Answers every ray another rank has asked about so far (traced against this rank's
@@ -225,13 +232,13 @@ class RankTracer {
   struct Found {
     Hit hit;
     int index = 0;  // of the ray in the asking rank's flight
-    int found = 0;
   };
   // A ray sent to another rank, with its index in this rank's flight.
   struct Asked {
     Ray ray;
     int index;
   };
+  static_assert(std::is_standard_layout_v<Ray> && std::is_standard_layout_v<Asked>, "written field by field (ask)");
   // What an ask (then Asked rays) and an answer (then Found hits, or a shadow stage's indices of
   // the rays found blocked) begin with: the asking rank's flight and its stage.
   struct AskHeader {
@@ -242,8 +249,9 @@ class RankTracer {
 
   template <typename T>
   static void append(std::vector<char>& bytes, const T& value) {
-    const char* p = reinterpret_cast<const char*>(&value);
-    bytes.insert(bytes.end(), p, p + sizeof(T));
+    const size_t at = bytes.size();
+    bytes.resize(at + sizeof(T));
+    std::memcpy(bytes.data() + at, static_cast<const void*>(&value), sizeof(T));
   }
   template <typename T>
   static T read(const std::vector<char>& bytes, size_t at) {
@@ -262,39 +270,51 @@ class RankTracer {
   // The rays of the ask `status` announced, traced against this rank's iso-surfaces, and what
   // they found sent back to the asking rank.
   void answer(const MPI_Status& status, TraversalStats& stats) {
-    const std::vector<char> bytes = receive(status);
+    receive(status, m_inbox);
+    const std::vector<char>& bytes = m_inbox;
     if (bytes.size() < sizeof(AskHeader) || (bytes.size() - sizeof(AskHeader)) % sizeof(Asked) != 0)
       MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
     const AskHeader header = read<AskHeader>(bytes, 0);
     const size_t n = (bytes.size() - sizeof(AskHeader)) / sizeof(Asked);
     raysReceived += double(n);
-    if (m_answers.size() < n) m_answers.resize(n);  // (reused: each answer writes what it sends)
-    std::vector<Found>& answers = m_answers;
-    parallel(n, stats, [&](size_t k, TraversalStats& s) {
+    // (The arrays are reused from ask to ask: each answer writes what it reads.)
+    if (m_rays.size() < n) {
+      m_rays.resize(n);
+      m_indices.resize(n);
+      m_hits.resize(n);
+      m_found.resize(n);
+    }
+    for (size_t k = 0; k < n; ++k) {
       const Asked a = read<Asked>(bytes, sizeof(AskHeader) + k * sizeof(Asked));
-      Ray r = a.ray;
-      r.mask = World::kVolumeMask;
-      answers[k].index = a.index;
-      answers[k].found = header.shadow ? m_world.occluded(r, s) : m_world.intersect(r, answers[k].hit, s);
-    });
+      m_rays[k] = a.ray;
+      m_rays[k].mask = World::kVolumeMask;
+      m_indices[k] = a.index;
+    }
+    if (header.shadow) {
+      parallel(n, stats, [&](size_t k, TraversalStats& s) { m_found[k] = m_world.occluded(m_rays[k], s); });
+    } else {
+      parallel(n, stats, [&](size_t k, TraversalStats& s) { m_found[k] = m_world.intersect(m_rays[k], m_hits[k], s); });
+    }
     // The hits found with the index of the ray in the asker's flight (a shadow ray: the index
     // alone, of the rays found blocked).
     std::vector<char> back;
     append(back, header);
     for (size_t k = 0; k < n; ++k) {
-      const Found& a = answers[k];
-      if (!a.found) continue;
-      if (header.shadow)
-        append(back, a.index);
-      else
+      if (!m_found[k]) continue;
+      if (header.shadow) {
+        append(back, m_indices[k]);
+      } else {
+        const Found a{m_hits[k], m_indices[k]};
         append(back, a);
+      }
     }
     post(back, status.MPI_SOURCE, kAnswer);
   }
 
   // The answer `status` announced, into the flight it answers.
   void take(const MPI_Status& status, std::vector<Flight*>& flights) {
-    const std::vector<char> bytes = receive(status);
+    receive(status, m_inbox);
+    const std::vector<char>& bytes = m_inbox;
     const int q = status.MPI_SOURCE;
     if (bytes.size() < sizeof(AskHeader)) MPI_Abort(MPI_COMM_WORLD, 1);
     const AskHeader header = read<AskHeader>(bytes, 0);
@@ -372,8 +392,18 @@ class RankTracer {
   int m_rank, m_ranks;
   double m_cell;  // World::largestCell
   std::vector<Vec3d> m_lower, m_upper;
-  std::vector<std::vector<char>> m_asks;  // a stage's rays for each rank, being written
-  std::vector<Found> m_answers;            // what the rays of an ask found
+  // A ray of a stage asked of a rank: its index in the flight, and the end the rank is asked to look to.
+  struct Selected {
+    uint32_t index;
+    float tfar;
+  };
+  std::vector<std::vector<Selected>> m_selected;  // by rank: the rays of the stage being asked
+  std::vector<char> m_inbox;               // the message being read (an ask or an answer)
+  // An ask's rays as this rank traces them, their indices in the asker's flight, what they found.
+  std::vector<Ray> m_rays;
+  std::vector<int> m_indices;
+  std::vector<Hit> m_hits;
+  std::vector<char> m_found;
   Outbox m_outbox;
 };
 

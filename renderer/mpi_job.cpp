@@ -38,11 +38,16 @@ void Outbox::drain() {
   m_pending.clear();
 }
 
-std::vector<char> receive(const MPI_Status& status) {
+void receive(const MPI_Status& status, std::vector<char>& buffer) {
   int bytes = 0;
   MPI_Get_count(&status, MPI_BYTE, &bytes);
-  std::vector<char> buffer(size_t(std::max(bytes, 0)));
+  buffer.resize(size_t(std::max(bytes, 0)));
   MPI_Recv(buffer.data(), bytes, MPI_BYTE, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+}
+
+std::vector<char> receive(const MPI_Status& status) {
+  std::vector<char> buffer;
+  receive(status, buffer);
   return buffer;
 }
 

@@ -56,6 +56,9 @@ class Outbox {
 
 // Receives the message `status` announced, whole.
 std::vector<char> receive(const MPI_Status& status);
+// The same into `buffer` (resized to the message; a buffer reused for every message of a kind
+// is zeroed only where it grows).
+void receive(const MPI_Status& status, std::vector<char>& buffer);
 
 // Collective: every rank's counters summed into `total` on rank `root`.
 void sendCounters(const RayCounters& mine, RayCounters& total, int root);
