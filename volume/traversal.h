@@ -407,6 +407,7 @@ class CellWalk {
     m_t0 = t0;
     m_t1 = t1;
     m_ta = t0;
+    for (int a = 0; a < 3; ++a) m_absOrg[a] = std::fabs(ray.org[a]);
     m_entryAxis = m_enterAxis = entryAxis;
     // Exact zeros (a face or edge whose value is exactly the iso value, common with integer
     // data and integer iso values) take the class the ray had just before them: a crossing is
@@ -511,14 +512,20 @@ class CellWalk {
     // 1e-6 from takes the exact ray's class (a lost pair each on lidc2 at iso 18, 1e6 rays).
     if constexpr (std::is_same_v<Real, float>) {
       if (const ExactEnds* exact = m_exact) {
-        exactSegment(*exact, enterAxis, leaveAxis, seg);
+        // The ray's extent at the segment's two ends, for the doubt of the segment and of its two
+        // faces (the end one is the next cell's start one: kept while the walk solves cells in a row).
+        const Real extentA = m_ta == m_extentT ? m_extentAtT : extentAt(m_ta);
+        const Real extentB = extentAt(m_tb);
+        m_extentT = m_tb;
+        m_extentAtT = extentB;
+        exactSegment(*exact, enterAxis, leaveAxis, std::max(extentA, extentB), seg);
         if (enterAxis >= 0 && !m_startGiven && !atGridFace(enterAxis, true) &&
-            faceInDoubt(seg.f0, seg.g, enterAxis, seg.a[enterAxis], m_ta)) {
+            faceInDoubt(seg.f0, seg.g, enterAxis, seg.a[enterAxis], extentA)) {
           const int c = exactEndClass(cells, *exact, m_cell, 0, enterAxis, gridFace(enterAxis, true));
           if (c != 0 && (seg.f0 == Real(0) || (c > 0) != (seg.f0 > Real(0)))) seg.f0 = c > 0 ? kTiny : -kTiny;
         }
         if (m_throughFace && !atGridFace(leaveAxis, false) &&
-            faceInDoubt(seg.f1, seg.g, leaveAxis, seg.b[leaveAxis], m_tb)) {
+            faceInDoubt(seg.f1, seg.g, leaveAxis, seg.b[leaveAxis], extentB)) {
           const int c = exactEndClass(cells, *exact, m_cell, 0, leaveAxis, gridFace(leaveAxis, false));
           if (c != 0 && (seg.f1 == Real(0) || (c > 0) != (seg.f1 > Real(0)))) seg.f1 = c > 0 ? kTiny : -kTiny;
         }
@@ -616,7 +623,10 @@ class CellWalk {
   // doubt (CellSegment::doubt): a and b are the float ray's points, each within ~4 eps of the
   // grid coordinates' magnitude (and t's rounding) of the exact ones; the field's slope in a
   // cell is at most ~3.5 times the sum of |g|; plus the evaluation error.
-  ISO_INLINE void exactSegment(const ExactEnds& e, int enterAxis, int leaveAxis, CellSegment<Real>& seg) const {
+  // `extent`: the largest of extentAt(m_ta) and extentAt(m_tb), which is max over the axes of
+  // |org| + max(|ta dir|, |tb dir|) bit for bit (rounding is monotone: |o| + max(x, y) rounds to
+  // the larger of |o| + x and |o| + y).
+  ISO_INLINE void exactSegment(const ExactEnds& e, int enterAxis, int leaveAxis, Real extent, CellSegment<Real>& seg) const {
     seg.hasExact = true;
     seg.exactCorners = [](const void* cells, const Vec3i& cell, double iso, double g[8]) {
       static_cast<const Cells*>(cells)->load(cell, iso, g);
@@ -632,16 +642,13 @@ class CellWalk {
     seg.exactAxis[1] = leaveAxis;
     seg.exactT[0] = double(m_ta);
     seg.exactT[1] = double(m_tb);
-    Real extent = 0;
-    for (int a = 0; a < 3; ++a)
-      extent = std::max(extent, std::fabs(m_ray->org[a]) + std::max(std::fabs(m_ta * m_ray->dir[a]), std::fabs(m_tb * m_ray->dir[a])));
     seg.doubt = (Real(32) + Real(16) * (extent + Real(1))) * std::numeric_limits<Real>::epsilon();
   }
   // Whether the float value f at a face (local coordinate `side` on `axis`, at t) may have the
   // wrong sign: |f| within the rounding of the face point (a few eps of its grid coordinates)
   // times the face's corners, plus their evaluation error. The face's four corners in index
-  // order, and the ray and t: the same bits in both cells of the face.
-  ISO_INLINE bool faceInDoubt(Real f, const Real g[8], int axis, Real side, Real t) const {
+  // order, and the ray's extent at the face's t (extentAt): the same bits in both cells of the face.
+  ISO_INLINE bool faceInDoubt(Real f, const Real g[8], int axis, Real side, Real extent) const {
     // The face's corners are those whose index has `side` in bit `axis`: i0 + {0, s1, s2, s1 + s2}
     // for the other two axes' index steps, summed in index order as a loop over all 8 would
     // (no branch per corner: this runs at every face a walk looks at twice).
@@ -649,9 +656,14 @@ class CellWalk {
     const int i0 = bit << axis;
     const int s1 = axis == 0 ? 2 : 1, s2 = axis == 2 ? 2 : 4;
     const Real corners = ((std::fabs(g[i0]) + std::fabs(g[i0 + s1])) + std::fabs(g[i0 + s2])) + std::fabs(g[i0 + s1 + s2]);
-    Real extent = 0;
-    for (int a = 0; a < 3; ++a) extent = std::max(extent, std::fabs(m_ray->org[a]) + std::fabs(t * m_ray->dir[a]));
     return std::fabs(f) <= Real(8) * std::numeric_limits<Real>::epsilon() * (extent + Real(2)) * corners;
+  }
+  // The largest over the axes of |org| + |t dir|: the magnitude of the ray's grid coordinates at t,
+  // which their rounding scales with.
+  ISO_INLINE Real extentAt(Real t) const {
+    Real extent = 0;
+    for (int a = 0; a < 3; ++a) extent = std::max(extent, m_absOrg[a] + std::fabs(t * m_ray->dir[a]));
+    return extent;
   }
   ISO_INLINE Real faceValue(int axis, bool entering) const {
     const bool pos = m_ray->dir[axis] > Real(0);
@@ -700,6 +712,9 @@ class CellWalk {
   Real m_carried = 0;
   bool m_entryPending = false, m_startGiven = false, m_firstSegment = true;
   int m_seamExit = 0;  // this cell leaves through a seam exactly on the surface: seamClass there, else 0
+  Vec3<Real> m_absOrg;  // |ray.org| per axis
+  // extentAt(m_extentT), of the last solved segment's end (NaN: none yet).
+  Real m_extentT = std::numeric_limits<Real>::quiet_NaN(), m_extentAtT = 0;
   CellSegment<Real> m_seg;
 };
 
