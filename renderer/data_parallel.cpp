@@ -102,15 +102,23 @@ class RankTracer {
     for (int q = 0; q < m_ranks; ++q) {
       const std::vector<Selected>& list = m_selected[size_t(q)];
       if (list.empty()) continue;
-      std::vector<char> bytes(sizeof(AskHeader) + list.size() * sizeof(Asked));
+      size_t size = sizeof(AskHeader);
+      for (const Selected& sel : list) size += isShort(b.rays[sel.index]) ? sizeof(AskedShort) : sizeof(AskedWhole);
+      std::vector<char> bytes(size);
       std::memcpy(bytes.data(), &header, sizeof(AskHeader));
       char* at = bytes.data() + sizeof(AskHeader);
       for (const Selected& sel : list) {
-        std::memcpy(at + offsetof(Asked, ray), static_cast<const void*>(&b.rays[sel.index]), sizeof(Ray));
-        std::memcpy(at + offsetof(Asked, ray) + offsetof(Ray, tfar), &sel.tfar, sizeof(float));
-        const int index = int(sel.index);
-        std::memcpy(at + offsetof(Asked, index), &index, sizeof(int));
-        at += sizeof(Asked);
+        const Ray& ray = b.rays[sel.index];
+        if (isShort(ray)) {
+          const AskedShort a{int32_t(sel.index), 0, ray.org, ray.dir, ray.tnear, sel.tfar};
+          std::memcpy(at, &a, sizeof a);
+          at += sizeof a;
+        } else {
+          AskedWhole a{int32_t(sel.index), 1, ray};
+          a.ray.tfar = sel.tfar;
+          std::memcpy(at, static_cast<const void*>(&a), sizeof a);
+          at += sizeof a;
+        }
       }
       raysSent += double(list.size());
       post(bytes, q, kAsk);
@@ -233,13 +241,27 @@ class RankTracer {
     Hit hit;
     int index = 0;  // of the ray in the asking rank's flight
   };
-  // A ray sent to another rank, with its index in this rank's flight.
-  struct Asked {
-    Ray ray;
-    int index;
+  // A ray sent to another rank, with its index in this rank's flight: most rays (from the camera
+  // or a triangle: isShort) as their origin, direction and extent alone, 40 bytes, the rest of
+  // them a default Ray's; the others (leaving an iso-surface, with their origin in double and
+  // their start class) whole, 120 bytes.
+  struct AskedShort {
+    int32_t index;
+    int32_t whole;  // 0: this; 1: an AskedWhole
+    Vec3f org, dir;
+    float tnear, tfar;
   };
-  static_assert(std::is_standard_layout_v<Ray> && std::is_standard_layout_v<Asked>, "written field by field (ask)");
-  // What an ask (then Asked rays) and an answer (then Found hits, or a shadow stage's indices of
+  struct AskedWhole {
+    int32_t index;
+    int32_t whole;
+    Ray ray;
+  };
+  static bool isShort(const Ray& r) {
+    const Ray plain;
+    return !r.org64 && r.fromSurface == plain.fromSurface && r.fromInside == plain.fromInside &&
+           r.fromCap == plain.fromCap && std::memcmp(&r.fromOffset, &plain.fromOffset, sizeof(Vec3d)) == 0;
+  }
+  // What an ask (then AskedShort and AskedWhole rays) and an answer (then Found hits, or a shadow stage's indices of
   // the rays found blocked) begin with: the asking rank's flight and its stage.
   struct AskHeader {
     int32_t slot;
@@ -272,23 +294,34 @@ class RankTracer {
   void answer(const MPI_Status& status, TraversalStats& stats) {
     receive(status, m_inbox);
     const std::vector<char>& bytes = m_inbox;
-    if (bytes.size() < sizeof(AskHeader) || (bytes.size() - sizeof(AskHeader)) % sizeof(Asked) != 0)
-      MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
+    if (bytes.size() < sizeof(AskHeader)) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
     const AskHeader header = read<AskHeader>(bytes, 0);
-    const size_t n = (bytes.size() - sizeof(AskHeader)) / sizeof(Asked);
+    // The rays, as this rank traces them (the arrays reused from ask to ask).
+    m_rays.clear();
+    m_indices.clear();
+    for (size_t at = sizeof(AskHeader); at < bytes.size();) {
+      if (bytes.size() - at < sizeof(AskedShort)) MPI_Abort(MPI_COMM_WORLD, 1);
+      const AskedShort a = read<AskedShort>(bytes, at);
+      m_indices.push_back(a.index);
+      if (a.whole) {
+        if (bytes.size() - at < sizeof(AskedWhole)) MPI_Abort(MPI_COMM_WORLD, 1);
+        m_rays.push_back(read<AskedWhole>(bytes, at).ray);
+        at += sizeof(AskedWhole);
+      } else {
+        Ray& r = m_rays.emplace_back();
+        r.org = a.org;
+        r.dir = a.dir;
+        r.tnear = a.tnear;
+        r.tfar = a.tfar;
+        at += sizeof(AskedShort);
+      }
+      m_rays.back().mask = World::kVolumeMask;
+    }
+    const size_t n = m_rays.size();
     raysReceived += double(n);
-    // (The arrays are reused from ask to ask: each answer writes what it reads.)
-    if (m_rays.size() < n) {
-      m_rays.resize(n);
-      m_indices.resize(n);
+    if (m_hits.size() < n) {
       m_hits.resize(n);
       m_found.resize(n);
-    }
-    for (size_t k = 0; k < n; ++k) {
-      const Asked a = read<Asked>(bytes, sizeof(AskHeader) + k * sizeof(Asked));
-      m_rays[k] = a.ray;
-      m_rays[k].mask = World::kVolumeMask;
-      m_indices[k] = a.index;
     }
     if (header.shadow) {
       parallel(n, stats, [&](size_t k, TraversalStats& s) { m_found[k] = m_world.occluded(m_rays[k], s); });
