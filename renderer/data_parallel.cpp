@@ -237,9 +237,17 @@ class RankTracer {
   double raysAsked = 0, raysSent = 0, raysReceived = 0, bytesSent = 0, waitSeconds = 0;
 
  private:
-  struct Found {
-    Hit hit;
-    int index = 0;  // of the ray in the asking rank's flight
+  // A hit an answering rank found, with the index of its ray in the asker's flight: an
+  // iso-surface's (the rays it traces meet nothing else), whose other fields are a default Hit's,
+  // its float position its double one rounded and its incoming direction the ray's (88 bytes,
+  // not a whole Hit's 168).
+  struct FoundIso {
+    int32_t index;
+    float t, tError, spawnOffset;
+    Vec3d position64;
+    Vec3f pError, normal, shading;
+    int32_t material, surface;
+    uint8_t insideAfter, cap;
   };
   // A ray sent to another rank, with its index in this rank's flight: most rays (from the camera
   // or a triangle: isShort) as their origin, direction and extent alone, 40 bytes, the rest of
@@ -261,8 +269,8 @@ class RankTracer {
     return !r.org64 && r.fromSurface == plain.fromSurface && r.fromInside == plain.fromInside &&
            r.fromCap == plain.fromCap && std::memcmp(&r.fromOffset, &plain.fromOffset, sizeof(Vec3d)) == 0;
   }
-  // What an ask (then AskedShort and AskedWhole rays) and an answer (then Found hits, or a shadow stage's indices of
-  // the rays found blocked) begin with: the asking rank's flight and its stage.
+  // What an ask (then AskedShort and AskedWhole rays) and an answer (then FoundIso hits, or a
+  // shadow stage's indices of the rays found blocked) begin with: the asking rank's flight and its stage.
   struct AskHeader {
     int32_t slot;
     uint32_t stage;
@@ -337,7 +345,21 @@ class RankTracer {
       if (header.shadow) {
         append(back, m_indices[k]);
       } else {
-        const Found a{m_hits[k], m_indices[k]};
+        const Hit& h = m_hits[k];
+        if (h.surface < 0 || h.mesh >= 0) MPI_Abort(MPI_COMM_WORLD, 1);  // (the mask lets only iso-surfaces through)
+        FoundIso a{};
+        a.index = m_indices[k];
+        a.t = h.t;
+        a.tError = h.tError;
+        a.spawnOffset = h.spawnOffset;
+        a.position64 = h.position64;
+        a.pError = h.pError;
+        a.normal = h.normal;
+        a.shading = h.shading;
+        a.material = h.material;
+        a.surface = h.surface;
+        a.insideAfter = h.insideAfter;
+        a.cap = h.cap;
         append(back, a);
       }
     }
@@ -354,25 +376,39 @@ class RankTracer {
     if (header.slot < 0 || size_t(header.slot) >= flights.size()) MPI_Abort(MPI_COMM_WORLD, 1);
     Flight& f = *flights[size_t(header.slot)];
     RayBatch& b = f.batch;
-    const size_t size = b.shadow ? sizeof(int) : sizeof(Found);
+    const size_t size = b.shadow ? sizeof(int) : sizeof(FoundIso);
     if (header.stage != f.stage || (header.shadow != 0) != b.shadow || f.waiting <= 0 ||
         (bytes.size() - sizeof(AskHeader)) % size != 0)
       MPI_Abort(MPI_COMM_WORLD, 1);
     for (size_t at = sizeof(AskHeader); at < bytes.size(); at += size) {
-      Found a;
-      if (b.shadow)
-        a.index = read<int>(bytes, at);
-      else
-        a = read<Found>(bytes, at);
+      if (b.shadow) {
+        const int index = read<int>(bytes, at);
+        if (index < 0 || size_t(index) >= b.size()) MPI_Abort(MPI_COMM_WORLD, 1);
+        b.found[size_t(index)] = 1;
+        continue;
+      }
+      const FoundIso a = read<FoundIso>(bytes, at);
       const size_t i = size_t(a.index);
       if (a.index < 0 || i >= b.size()) MPI_Abort(MPI_COMM_WORLD, 1);
-      if (b.shadow) {
-        b.found[i] = 1;
-      } else if (!b.found[i] || a.hit.t < b.hits[i].t || (a.hit.t == b.hits[i].t && q < f.from[i])) {
-        b.hits[i] = a.hit;
-        b.found[i] = 1;
-        f.from[i] = q;
-      }
+      if (b.found[i] && !(a.t < b.hits[i].t || (a.t == b.hits[i].t && q < f.from[i]))) continue;
+      // The Hit World::fillHit made of it on the answering rank.
+      Hit& h = b.hits[i];
+      h = Hit();
+      h.t = a.t;
+      h.tError = a.tError;
+      h.spawnOffset = a.spawnOffset;
+      h.position64 = a.position64;
+      h.position = Vec3f(a.position64);
+      h.pError = a.pError;
+      h.normal = a.normal;
+      h.shading = a.shading;
+      h.material = a.material;
+      h.surface = a.surface;
+      h.insideAfter = a.insideAfter != 0;
+      h.cap = a.cap != 0;
+      h.incoming = b.rays[i].dir;
+      b.found[i] = 1;
+      f.from[i] = q;
     }
     --f.waiting;
   }
