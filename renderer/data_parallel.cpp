@@ -248,6 +248,40 @@ class RankTracer {
     Vec3f pError, normal, shading;
     int32_t material, surface;
     uint8_t insideAfter, cap;
+
+    static FoundIso of(const Hit& h, int index) {
+      FoundIso a{};
+      a.index = index;
+      a.t = h.t;
+      a.tError = h.tError;
+      a.spawnOffset = h.spawnOffset;
+      a.position64 = h.position64;
+      a.pError = h.pError;
+      a.normal = h.normal;
+      a.shading = h.shading;
+      a.material = h.material;
+      a.surface = h.surface;
+      a.insideAfter = h.insideAfter;
+      a.cap = h.cap;
+      return a;
+    }
+    // The Hit World::fillHit made of it on the answering rank (`incoming`: the ray's direction).
+    void into(Hit& h, const Vec3f& incoming) const {
+      h = Hit();
+      h.t = t;
+      h.tError = tError;
+      h.spawnOffset = spawnOffset;
+      h.position64 = position64;
+      h.position = Vec3f(position64);
+      h.pError = pError;
+      h.normal = normal;
+      h.shading = shading;
+      h.material = material;
+      h.surface = surface;
+      h.insideAfter = insideAfter != 0;
+      h.cap = cap != 0;
+      h.incoming = incoming;
+    }
   };
   // A ray sent to another rank, with its index in this rank's flight: most rays (from the camera
   // or a triangle: isShort) as their origin, direction and extent alone, 40 bytes, the rest of
@@ -347,20 +381,7 @@ class RankTracer {
       } else {
         const Hit& h = m_hits[k];
         if (h.surface < 0 || h.mesh >= 0) MPI_Abort(MPI_COMM_WORLD, 1);  // (the mask lets only iso-surfaces through)
-        FoundIso a{};
-        a.index = m_indices[k];
-        a.t = h.t;
-        a.tError = h.tError;
-        a.spawnOffset = h.spawnOffset;
-        a.position64 = h.position64;
-        a.pError = h.pError;
-        a.normal = h.normal;
-        a.shading = h.shading;
-        a.material = h.material;
-        a.surface = h.surface;
-        a.insideAfter = h.insideAfter;
-        a.cap = h.cap;
-        append(back, a);
+        append(back, FoundIso::of(h, m_indices[k]));
       }
     }
     post(back, status.MPI_SOURCE, kAnswer);
@@ -391,22 +412,7 @@ class RankTracer {
       const size_t i = size_t(a.index);
       if (a.index < 0 || i >= b.size()) MPI_Abort(MPI_COMM_WORLD, 1);
       if (b.found[i] && !(a.t < b.hits[i].t || (a.t == b.hits[i].t && q < f.from[i]))) continue;
-      // The Hit World::fillHit made of it on the answering rank.
-      Hit& h = b.hits[i];
-      h = Hit();
-      h.t = a.t;
-      h.tError = a.tError;
-      h.spawnOffset = a.spawnOffset;
-      h.position64 = a.position64;
-      h.position = Vec3f(a.position64);
-      h.pError = a.pError;
-      h.normal = a.normal;
-      h.shading = a.shading;
-      h.material = a.material;
-      h.surface = a.surface;
-      h.insideAfter = a.insideAfter != 0;
-      h.cap = a.cap != 0;
-      h.incoming = b.rays[i].dir;
+      a.into(b.hits[i], b.rays[i].dir);
       b.found[i] = 1;
       f.from[i] = q;
     }
