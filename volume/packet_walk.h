@@ -1,8 +1,8 @@
 #pragma once
-// Up to 8 rays' walks through one brick in lockstep (an Embree packet's lanes on one primitive).
+// Up to 8 rays' walks through one brick together (an Embree packet's lanes on one primitive).
 // Each lane is a CellWalk (volume/traversal.h): the DDA and every decision a cell makes are the
-// scalar walk's own code. What the lanes share is the solve: each lockstep step gathers the
-// cells that need one and solves their cubics together, 8 lanes per instruction (AVX2 when the
+// scalar walk's own code. What the lanes share is the solve: each step takes every lane to its
+// next cell to solve and solves their cubics together, 8 lanes per instruction (AVX2 when the
 // CPU has it, chosen at run time; SSE otherwise). The vector solve of the isolation intersector
 // gives the scalar one's bits (same operations in the same order on every lane, no FMA
 // contraction: packet_walk.cpp is built with -ffp-contract=off); tests/packet_test.cpp checks
@@ -67,9 +67,13 @@ struct LaneByLane {
   }
 };
 
-// Walks the lanes in `live` (whose begin() returned true) to their first crossing, in lockstep:
-// bit l of the result is set when lane l found one (hits[l], for closest-hit queries). Each lane
-// gets exactly what traverseCells gives it alone.
+// Walks the lanes in `live` (whose begin() returned true) to their first crossing: bit l of the
+// result is set when lane l found one (hits[l], for closest-hit queries). Each step takes every
+// live lane on through the cells it passes to its next cell to solve (or its end), then solves
+// those cells together: a lane that passes cells while another solves does not leave the next
+// solve short of a lane (at a lockstep of one cell per lane and step, 35-50% of the vector
+// solve's lanes were busy). Each lane gets exactly what traverseCells gives it alone: its cells
+// are visited, solved and advanced in the same order.
 template <bool AnyHit, typename Cells, typename PacketSolver>
 uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const PacketSolver& solver,
                         CellHit<float>* hits, TraversalStats& stats) {
@@ -81,38 +85,44 @@ uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const Pack
     uint32_t solve = 0;
     for (uint32_t rest = live; rest; rest &= rest - 1) {
       const int l = __builtin_ctz(rest);
-      switch (walks[l].visit(stats)) {
-        case Visit::StartCrossing:
-          if constexpr (!AnyHit) walks[l].startHit(hits[l], stats);
-          found |= 1u << l;
-          live &= ~(1u << l);
-          break;
-        case Visit::Solve:
-          solve |= 1u << l;
+      const uint32_t bit = 1u << l;
+      for (;;) {
+        const Visit v = walks[l].visit(stats);
+        if (v == Visit::Solve) {
+          solve |= bit;
           segs[l] = &walks[l].segment();
           break;
-        case Visit::Pass:
-          break;
-      }
-    }
-    if (solve) {
-      ++stats.solveSteps;
-      stats.solveLanes += uint64_t(__builtin_popcount(solve));
-      if constexpr (AnyHit) {
-        const uint32_t yes = solver.any(segs, solve);
-        found |= yes;
-        live &= ~yes;
-      } else {
-        Root<float> roots[kPacketLanes];
-        const uint32_t yes = solver.first(segs, solve, roots);
-        for (uint32_t rest = yes; rest; rest &= rest - 1) {
-          const int l = __builtin_ctz(rest);
-          walks[l].hitAt(roots[l], hits[l], stats);
         }
-        found |= yes;
-        live &= ~yes;
+        if (v == Visit::StartCrossing) {
+          if constexpr (!AnyHit) walks[l].startHit(hits[l], stats);
+          found |= bit;
+          live &= ~bit;
+          break;
+        }
+        if (!walks[l].advance()) {  // (a cell passed)
+          live &= ~bit;
+          break;
+        }
       }
     }
+    if (!solve) continue;  // (every lane ended)
+    ++stats.solveSteps;
+    stats.solveLanes += uint64_t(__builtin_popcount(solve));
+    if constexpr (AnyHit) {
+      const uint32_t yes = solver.any(segs, solve);
+      found |= yes;
+      live &= ~yes;
+    } else {
+      Root<float> roots[kPacketLanes];
+      const uint32_t yes = solver.first(segs, solve, roots);
+      for (uint32_t rest = yes; rest; rest &= rest - 1) {
+        const int l = __builtin_ctz(rest);
+        walks[l].hitAt(roots[l], hits[l], stats);
+      }
+      found |= yes;
+      live &= ~yes;
+    }
+    // The lanes still live solved a cell without a crossing: on to the next.
     for (uint32_t rest = live; rest; rest &= rest - 1) {
       const int l = __builtin_ctz(rest);
       if (!walks[l].advance()) live &= ~(1u << l);
