@@ -286,7 +286,7 @@ class RankTracer {
   // A ray sent to another rank, with its index in this rank's flight: most rays (from the camera
   // or a triangle: isShort) as their origin, direction and extent alone, 40 bytes, the rest of
   // them a default Ray's; the others (leaving an iso-surface, with their origin in double and
-  // their start class) whole, 120 bytes.
+  // their start class) whole, 112 bytes.
   struct AskedShort {
     int32_t index;
     int32_t whole;  // 0: this; 1: an AskedWhole
