@@ -149,8 +149,8 @@ class IsoSurface {
                      GridRayCache* cache = nullptr) const;
   // Lanes of an Embree packet on one brick (the callbacks with N > 1): for each lane l in `mask`
   // (at most 8 lanes), what intersectBrick / occludedBrick give that lane alone, bit for bit; bit
-  // l of the result is set when lane l found a crossing. The lanes are walked in lockstep and
-  // their cells solved together (volume/packet_walk.h).
+  // l of the result is set when lane l found a crossing. The lanes are walked together, each to
+  // its next cell to solve, and those cells solved together (volume/packet_walk.h).
   struct PacketLane {
     Vec3d org, dir;
     double tnear = 0, tfar = 0;

@@ -61,8 +61,9 @@ struct TraversalStats {
   uint64_t cellsVisited = 0;  // cells the DDA stepped through
   uint64_t cellsSolved = 0;   // cells whose corners straddle the iso value
   uint64_t rootsRefined = 0;  // crossings located (closest-hit queries only)
-  // Packet queries (volume/packet_walk.h): brick queries of a packet, their lanes, lockstep
-  // steps, and the steps with cells to solve and how many lanes solved in them: how full the
+  // Packet queries (volume/packet_walk.h): brick queries of a packet, their lanes, steps (every
+  // live lane on to its next cell to solve; `lockstepSteps`, named when a step was one cell per
+  // lane), and the steps with cells to solve and how many lanes solved in them: how full the
   // lanes the vector code works on are.
   uint64_t packetQueries = 0, packetLanes = 0, lockstepSteps = 0, solveSteps = 0, solveLanes = 0;
   // Every counter, in order (to sum or send them all).
@@ -299,8 +300,8 @@ int exactEndClass(const Cells& cells, const ExactEnds& e, const Vec3i& cell, dou
 
 // One ray's walk through the cells [lo, hi) with t in [tnear, tfar], a cell at a time: the
 // 3D-DDA and everything a cell decides except the solve of its cubic. traverseCells drives one
-// walk with a scalar intersector; a packet query (volume/packet_walk.h) drives up to 8 in
-// lockstep and solves their cells together, so both run this same code for everything else and
+// walk with a scalar intersector; a packet query (volume/packet_walk.h) drives up to 8 together
+// and solves their cells together, so both run this same code for everything else and
 // give the same bits. `start` applies where the walk starts at tnear inside the box (not at a
 // face of it).
 template <typename Real, typename Cells>
