@@ -93,8 +93,12 @@ class RankTracer {
         const float reach = float(2 * m_cell / double(length(ray.dir)));
         tfar = std::min(tfar, nextFloatUp(b.hits[i].t + reach) * (1 + 1e-6f));
       }
-      for (int q = 0; q < m_ranks; ++q)
-        if (q != m_rank && reaches(ray, tfar, q)) m_selected[size_t(q)].push_back({uint32_t(i), tfar});
+      int whole = -1;  // (decided once a rank is asked about the ray)
+      for (int q = 0; q < m_ranks; ++q) {
+        if (q == m_rank || !reaches(ray, tfar, q)) continue;
+        if (whole < 0) whole = isShort(ray) ? 0 : 1;
+        m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole != 0});
+      }
     }
     raysAsked += double(n);
     f.waiting = 0;
@@ -103,13 +107,13 @@ class RankTracer {
       const std::vector<Selected>& list = m_selected[size_t(q)];
       if (list.empty()) continue;
       size_t size = sizeof(AskHeader);
-      for (const Selected& sel : list) size += isShort(b.rays[sel.index]) ? sizeof(AskedShort) : sizeof(AskedWhole);
+      for (const Selected& sel : list) size += sel.whole ? sizeof(AskedWhole) : sizeof(AskedShort);
       std::vector<char> bytes(size);
       std::memcpy(bytes.data(), &header, sizeof(AskHeader));
       char* at = bytes.data() + sizeof(AskHeader);
       for (const Selected& sel : list) {
         const Ray& ray = b.rays[sel.index];
-        if (isShort(ray)) {
+        if (!sel.whole) {
           const AskedShort a{int32_t(sel.index), 0, ray.org, ray.dir, ray.tnear, sel.tfar};
           std::memcpy(at, &a, sizeof a);
           at += sizeof a;
@@ -467,10 +471,12 @@ class RankTracer {
   int m_rank, m_ranks;
   double m_cell;  // World::largestCell
   std::vector<Vec3d> m_lower, m_upper;
-  // A ray of a stage asked of a rank: its index in the flight, and the end the rank is asked to look to.
+  // A ray of a stage asked of a rank: its index in the flight, the end the rank is asked to look
+  // to, and whether it goes whole (AskedWhole) or as an AskedShort.
   struct Selected {
     uint32_t index;
     float tfar;
+    bool whole;
   };
   std::vector<std::vector<Selected>> m_selected;  // by rank: the rays of the stage being asked
   std::vector<char> m_inbox;               // the message being read (an ask or an answer)
