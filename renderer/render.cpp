@@ -94,13 +94,15 @@ thread_local TileWave t_wave;
 uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
                                         RayCounters& counters, bool stopPerPixel) const {
   uint64_t taken = 0;
+  const uint64_t seedKey = Sampler::seedKey(m_options.seed);
   for (int y = r.y0; y < r.y1; ++y)
     for (int x = r.x0; x < r.x1; ++x) {
       if (stopPerPixel && stopRequested()) return taken;
       PixelSums& p = sums[size_t(y - r.y0) * stride + size_t(x - r.x0)];
       if (p.converged) continue;
+      const uint64_t pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
       for (int s = s0; s < s1; ++s) {
-        Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), m_options.seed);
+        Sampler sampler(pixelKey, uint32_t(s));
         const float jx = sampler.next(), jy = sampler.next();
         SampleResult result;
         m_integrator.Li(m_camera.generateRay(x + jx, y + jy), sampler, counters, result);

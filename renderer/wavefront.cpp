@@ -39,15 +39,18 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
   const size_t ns = m_samples;
   m_count = n * ns;
   if (m_paths.size() < m_count) m_paths.resize(m_count);  // reset path by path (PathState::begin)
-  for (size_t i = 0; i < n; ++i)
+  const uint64_t seedKey = Sampler::seedKey(options.seed);
+  for (size_t i = 0; i < n; ++i) {
+    const auto [x, y] = pixels[i];
+    const uint64_t pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
     for (int s = s0; s < s1; ++s) {
-      const auto [x, y] = pixels[i];
       PathState& p = m_paths[i * ns + size_t(s - s0)];
-      Sampler sampler(uint32_t(x), uint32_t(y), uint32_t(s), options.seed);
+      Sampler sampler(pixelKey, uint32_t(s));
       const float jx = sampler.next(), jy = sampler.next();
       p.begin(camera.generateRay(x + jx, y + jy), sampler);
       integrator.start(p);
     }
+  }
 }
 
 // The camera rays by sample, in packets of one sample's 4x2 block (pixels that share x / 4 and

@@ -15,13 +15,4 @@ Camera::Camera(const CameraDesc& d, int width, int height)
   m_aspect = float(width) / float(height);
 }
 
-Ray Camera::generateRay(float x, float y) const {
-  const float sx = (2 * x / m_width - 1) * m_tanHalf * m_aspect;
-  const float sy = (1 - 2 * y / m_height) * m_tanHalf;
-  Ray ray;
-  ray.org = m_origin;
-  ray.dir = normalize(m_forward + m_right * sx + m_up * sy);
-  return ray;
-}
-
 }  // namespace iso

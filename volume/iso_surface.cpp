@@ -343,7 +343,7 @@ uint32_t IsoSurface::packetQuery(Vec3i lo, Vec3i hi, const CellClasses* classes,
     return found;
   }
   ++stats.packetQueries;
-  stats.packetLanes += uint64_t(__builtin_popcount(mask));
+  stats.packetLanes += uint64_t(laneCount(mask));
   auto run = [&](const auto& solver) {
     return withCellAccess(m_grid, classes, classOrigin, [&](const auto& cells) {
       using Cells = std::decay_t<decltype(cells)>;

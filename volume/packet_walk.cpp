@@ -208,7 +208,7 @@ constexpr int kVectorSolveLanes = 3;
 
 uint32_t IsolationPacket::first(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask,
                                 Root<float> roots[kPacketLanes]) const {
-  if (__builtin_popcount(mask) < kVectorSolveLanes) {
+  if (laneCount(mask) < kVectorSolveLanes) {
     const IsolationIntersector scalar{iterations};
     uint32_t found = 0;
     for (uint32_t rest = mask; rest; rest &= rest - 1) {
@@ -227,7 +227,7 @@ uint32_t IsolationPacket::first(const CellSegment<float>* const segs[kPacketLane
 }
 
 uint32_t IsolationPacket::any(const CellSegment<float>* const segs[kPacketLanes], uint32_t mask) const {
-  if (__builtin_popcount(mask) < kVectorSolveLanes) {
+  if (laneCount(mask) < kVectorSolveLanes) {
     const IsolationIntersector scalar{iterations};
     uint32_t found = 0;
     for (uint32_t rest = mask; rest; rest &= rest - 1) {

@@ -18,6 +18,13 @@ namespace iso {
 
 constexpr int kPacketLanes = 8;
 
+// The lanes set in an 8-lane mask. (The build targets baseline x86-64, without POPCNT, where
+// __builtin_popcount is a call into libgcc: two of them per solve step.)
+inline int laneCount(uint32_t mask) {
+  constexpr unsigned char kNibble[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
+  return kNibble[mask & 15] + kNibble[(mask >> 4) & 15];
+}
+
 // Per-lane scratch of a packet query, left uninitialised: a query constructs (or assigns) the
 // entries of its active lanes only. The types held are trivially destructible plain data;
 // zero-filling 8 of each on every brick a packet visits cost more than the walk's setup.
@@ -107,7 +114,7 @@ uint32_t traversePacket(CellWalk<float, Cells>* walks, uint32_t live, const Pack
     }
     if (!solve) continue;  // (every lane ended)
     ++stats.solveSteps;
-    stats.solveLanes += uint64_t(__builtin_popcount(solve));
+    stats.solveLanes += uint64_t(laneCount(solve));
     if constexpr (AnyHit) {
       const uint32_t yes = solver.any(segs, solve);
       found |= yes;
