@@ -536,5 +536,22 @@ TEST(Integrators, SpawnedRaysLeaveTriangles) {
   }
 }
 
+// A renderer hashes the seed once and each pixel once (Sampler::seedKey, pixelKey): the numbers
+// are the one hash of (pixel, sample, dimension, seed) that every image so far was made with.
+TEST(Sampler, PixelKeysGiveTheHashOfPixelSampleAndSeed) {
+  for (uint64_t seed : {0ull, 7ull, 0xffffffffffffffffull})
+    for (uint32_t x : {0u, 5u, 4095u})
+      for (uint32_t y : {0u, 3u, 2159u})
+        for (uint32_t s : {0u, 1u, 1023u}) {
+          Sampler keyed(Sampler::pixelKey(Sampler::seedKey(seed), x, y), s), whole(x, y, s, seed);
+          const uint64_t key = mixBits(mixBits(mixBits(seed) ^ (uint64_t(x) << 32 | y)) ^ s);
+          for (uint64_t d = 1; d <= 4; ++d) {
+            const float expected = float(mixBits(key + 0x9e3779b97f4a7c15ull * d) >> 40) * 0x1p-24f;
+            EXPECT_EQ(keyed.next(), expected);
+            EXPECT_EQ(whole.next(), expected);
+          }
+        }
+}
+
 }  // namespace
 }  // namespace iso

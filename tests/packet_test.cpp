@@ -374,5 +374,16 @@ TEST(Packets, RefusesMoreThanEightRays) {
   EXPECT_THROW(world.occludedPacket(rays, 0, found, stats), std::logic_error);
 }
 
+// laneCount (a table, not libgcc's popcount call) decides when the vector solve pays and counts
+// the solve's lanes for --stats: every 8-lane mask, against the bits counted one by one.
+TEST(Packets, LaneCountCountsEveryMask) {
+  for (uint32_t mask = 0; mask < 256; ++mask) {
+    int bits = 0;
+    for (int l = 0; l < kPacketLanes; ++l) bits += (mask >> l) & 1;
+    EXPECT_EQ(laneCount(mask), bits) << "mask " << mask;
+  }
+}
+
 }  // namespace
 }  // namespace iso
+
