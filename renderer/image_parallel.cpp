@@ -116,26 +116,45 @@ bool unpack(const std::vector<char>& bytes, const TileRenderer& tiles, int spp, 
 }
 
 // The main thread's wait between looks at MPI when there was nothing to do: asleep until a
-// render thread finishes a piece, or for a time that doubles from 50 us to 2 ms while nothing
-// happens (back to 50 us once something does). mpirun binds each rank to one core, which the
-// main thread shares with the rank's render thread: a fixed 100 us poll woke it 10,000 times a
-// second, each an MPI progress call and two context switches on that core, and the render ran
-// ~55% slower than in one process (docs/BENCHMARKS.md, "The image-parallel slowdown"). Pieces
-// take milliseconds and every rank holds two more than it renders, so a 2 ms answer is not waited for.
+// render thread finishes a piece, or for a time that doubles while nothing happens (back to the
+// shortest once something does). mpirun binds each rank to one core, which the main thread
+// shares with the rank's render thread: a fixed 100 us poll woke it 10,000 times a second, each
+// an MPI progress call and two context switches on that core, and the render ran ~55% slower than
+// in one process (docs/BENCHMARKS.md, "The image-parallel slowdown"). The wait is scaled to how
+// long a piece takes (the pieces seen so far): a rank holds two pieces more than its `threads`
+// render, which last it a piece's time over `threads`, so an answer within half of that is never
+// waited for, and waking more often only takes the core from the render thread (starting from
+// 50 us after every message, 2 ranks switched context ~3,000 times a second each and rendered
+// ~4% slower: docs/BENCHMARKS.md, issue 47's fifth session). Until a piece is done: from 50 us
+// to 2 ms.
 class Idle {
  public:
+  explicit Idle(int threads) : m_threads(std::max(1, threads)) {}
   void wait(PieceWorkers& workers, bool busy) {
     if (busy) {
-      m_wait = kShortest;
+      m_wait = m_shortest;
       return;
     }
     workers.waitForDone(m_wait);
-    m_wait = std::min(m_wait * 2, kLongest);
+    m_wait = std::min(m_wait * 2, m_longest);
+  }
+  // A piece took `seconds` to render (on any rank).
+  void pieceDone(double seconds) {
+    if (!(seconds >= 0 && seconds < 3600)) return;  // (another rank's figure: no NaN reaches the clock)
+    m_pieceSeconds += seconds;
+    ++m_pieces;
+    // The time between two of the rank's pieces finishing.
+    const auto mean = std::chrono::duration<double>(m_pieceSeconds / double(m_pieces) / m_threads);
+    m_shortest = std::clamp(std::chrono::duration_cast<std::chrono::microseconds>(mean / 2), kShortest, kLongest);
+    m_longest = std::clamp(std::chrono::duration_cast<std::chrono::microseconds>(mean * 2), kLongest, kLongestScaled);
   }
 
  private:
-  static constexpr std::chrono::microseconds kShortest{50}, kLongest{2000};
-  std::chrono::microseconds m_wait = kShortest;
+  static constexpr std::chrono::microseconds kShortest{50}, kLongest{2000}, kLongestScaled{8000};
+  std::chrono::microseconds m_shortest = kShortest, m_longest = kLongest, m_wait = kShortest;
+  int m_threads;
+  double m_pieceSeconds = 0;
+  uint64_t m_pieces = 0;
 };
 
 }  // namespace
@@ -208,7 +227,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
       }
     };
     std::deque<int> waiting;  // ranks that asked for a piece and have no answer yet
-    Idle idle;
+    Idle idle(threads);
     Outbox outbox;
     std::vector<char> bytes;
     double lastPrint = -1, stoppedAt = -1;
@@ -219,6 +238,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
       if (stop && stoppedAt < 0) stoppedAt = since(start);
       for (Piece piece; !stop && localHeld < inFlight && take(piece); ++localHeld) workers.push(std::move(piece));
       for (Piece piece; workers.pop(piece); busy = true) {
+        idle.pieceDone(piece.header.busySeconds);
         store(piece, 0);
         --localHeld;
       }
@@ -237,6 +257,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
             std::fprintf(stderr, "isotrace: rank %d sent a malformed piece (%zu bytes)\n", from, bytes.size());
             job.abort(1);
           }
+          idle.pieceDone(piece.header.busySeconds);
           store(piece, from);
         } else if (status.MPI_TAG == kDone) {
           ++doneRanks;
@@ -297,7 +318,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
   // Every other rank: keeps up to `inFlight` pieces asked for or in hand, returns each.
   int asked = 0, held = 0;
   bool noMore = false;
-  Idle idle;
+  Idle idle(threads);
   Outbox outbox;
   std::vector<char> bytes;
   for (;;) {
@@ -324,6 +345,7 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
       }
     }
     for (Piece piece; workers.pop(piece); busy = true) {
+      idle.pieceDone(piece.header.busySeconds);
       pack(piece, bytes);
       outbox.send(std::move(bytes), 0, kResult);
       --held;
