@@ -17,13 +17,17 @@ inline uint64_t mixBits(uint64_t v) {
 
 class Sampler {
  public:
-  Sampler(uint32_t x, uint32_t y, uint32_t sampleIndex, uint64_t seed)
-      : Sampler(pixelKey(seedKey(seed), x, y), sampleIndex) {}
   // The same sampler from its pixel's key: a renderer hashes the seed once and each pixel once,
   // not both again for every sample.
-  Sampler(uint64_t pixelKey, uint32_t sampleIndex) : m_key(mixBits(pixelKey ^ sampleIndex)) {}
+  struct PixelKey {
+    uint64_t bits;
+  };
   static uint64_t seedKey(uint64_t seed) { return mixBits(seed); }
-  static uint64_t pixelKey(uint64_t seedKey, uint32_t x, uint32_t y) { return mixBits(seedKey ^ (uint64_t(x) << 32 | y)); }
+  static PixelKey pixelKey(uint64_t seedKey, uint32_t x, uint32_t y) { return {mixBits(seedKey ^ (uint64_t(x) << 32 | y))}; }
+
+  Sampler(uint32_t x, uint32_t y, uint32_t sampleIndex, uint64_t seed)
+      : Sampler(pixelKey(seedKey(seed), x, y), sampleIndex) {}
+  Sampler(PixelKey pixel, uint32_t sampleIndex) : m_key(mixBits(pixel.bits ^ sampleIndex)) {}
   // Uniform in [0, 1): the top 24 bits of the hash of the next dimension.
   float next() {
     const uint64_t bits = mixBits(m_key + 0x9e3779b97f4a7c15ull * ++m_dimension);

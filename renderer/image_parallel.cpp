@@ -123,10 +123,10 @@ bool unpack(const std::vector<char>& bytes, const TileRenderer& tiles, int spp, 
 // in one process (docs/BENCHMARKS.md, "The image-parallel slowdown"). The wait is scaled to how
 // long a piece takes (the pieces seen so far): a rank holds two pieces more than its `threads`
 // render, which last it a piece's time over `threads`, so an answer within half of that is never
-// waited for, and waking more often only takes the core from the render thread (starting from
-// 50 us after every message, 2 ranks switched context ~3,000 times a second each and rendered
-// ~4% slower: docs/BENCHMARKS.md, issue 47's fifth session). Until a piece is done: from 50 us
-// to 2 ms.
+// waited for, and waking more often only takes the core from the render thread (starting again
+// from 50 us after every message, 2 ranks switched context ~3,000 times a second each, twice as
+// often as with this wait: docs/BENCHMARKS.md, issue 47's fifth session). Until a piece is done:
+// from 50 us to 2 ms.
 class Idle {
  public:
   explicit Idle(int threads) : m_threads(std::max(1, threads)) {}

@@ -100,7 +100,7 @@ uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums
       if (stopPerPixel && stopRequested()) return taken;
       PixelSums& p = sums[size_t(y - r.y0) * stride + size_t(x - r.x0)];
       if (p.converged) continue;
-      const uint64_t pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
+      const Sampler::PixelKey pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
       for (int s = s0; s < s1; ++s) {
         Sampler sampler(pixelKey, uint32_t(s));
         const float jx = sampler.next(), jy = sampler.next();

@@ -42,7 +42,7 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
   const uint64_t seedKey = Sampler::seedKey(options.seed);
   for (size_t i = 0; i < n; ++i) {
     const auto [x, y] = pixels[i];
-    const uint64_t pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
+    const Sampler::PixelKey pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
     for (int s = s0; s < s1; ++s) {
       PathState& p = m_paths[i * ns + size_t(s - s0)];
       Sampler sampler(pixelKey, uint32_t(s));
