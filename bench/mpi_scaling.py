@@ -11,13 +11,18 @@ another build.
 turn with this build's; prints its median and this build's speed-up over it (the shared machine's
 noise hits both alike).
 
+--with-threads: each run also renders one process with ranks x threads threads (the same cores
+as the ranks, in one process); prints its median and the ranks' time over it: what running as
+separate processes costs against threads on this machine, measured in the same runs (the
+machine's speed can change by 30% from one run to the next).
+
 --data-parallel: both renders with --data-parallel (the ranks each hold part of every volume
 and answer each other's rays; one process is the same render whole); also prints the rays the
 ranks asked each other about, the bytes they sent per frame and the seconds they spent in the
 exchanges.
 
 Usage: bench/mpi_scaling.py [--runs 3] [--ranks 2] [--threads 1] [--resolution 960x540]
-       [--spp 16] [--data-parallel] [--against OTHER_ISOTRACE] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
+       [--spp 16] [--data-parallel] [--against OTHER_ISOTRACE] [--with-threads] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
 """
 import argparse
 import json
@@ -50,6 +55,8 @@ def main():
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--data-parallel", action="store_true")
     parser.add_argument("--against", help="another build's isotrace: its N-rank renders in turn with this one's")
+    parser.add_argument("--with-threads", action="store_true",
+                        help="also one process with ranks x threads threads, in the same runs")
     a = parser.parse_args()
     scenes = a.scenes or [os.path.join(ROOT, "bench", "scenes", "gyroid_ball.json")]
     mpirun = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(a.ranks)]
@@ -62,7 +69,7 @@ def main():
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as work:
         for scene in scenes:
-            one, many, pieces, balance, busy, traffic, other = [], [], [], [], [], [], []
+            one, many, pieces, balance, busy, traffic, other, threaded = [], [], [], [], [], [], [], []
             same = True
             for _ in range(a.runs):
                 s1 = render([], scene, args, os.path.join(work, "one.exr"), os.path.join(work, "one.json"))
@@ -70,6 +77,11 @@ def main():
                     so = render(mpirun, scene, args, os.path.join(work, "other.exr"), os.path.join(work, "other.json"),
                                 a.against)
                     other.append(so["seconds"]["render"])
+                if a.with_threads:
+                    wide = args[:args.index("--threads")] + ["--threads", str(a.ranks * a.threads)] + \
+                        args[args.index("--threads") + 2:]
+                    st = render([], scene, wide, os.path.join(work, "threads.exr"), os.path.join(work, "threads.json"))
+                    threaded.append(st["seconds"]["render"])
                 sn = render(mpirun, scene, args, os.path.join(work, "many.exr"), os.path.join(work, "many.json"))
                 same = same and s1["rays"] == sn["rays"] and pixels_equal(work)
                 one.append(s1["seconds"]["render"])
@@ -94,6 +106,11 @@ def main():
                 mo = statistics.median(other)
                 print("  against %s: %d ranks %.3f s (runs %s), speed-up of this build %.2f" % (
                     a.against, a.ranks, mo, ", ".join("%.3f" % x for x in other), mo / mn))
+            if threaded:
+                mt = statistics.median(threaded)
+                print("  one process x %d threads: %.3f s (runs %s), speed-up %.2f; %d ranks over it: %.3f "
+                      "(per run %s)" % (a.ranks * a.threads, mt, ", ".join("%.3f" % x for x in threaded), m1 / mt,
+                                        a.ranks, mn / mt, ", ".join("%.3f" % (n / t) for n, t in zip(many, threaded))))
             print("  runs: 1 process %s; %d ranks %s" % (", ".join("%.3f" % x for x in one), a.ranks,
                                                        ", ".join("%.3f" % x for x in many)), file=sys.stderr)
 
