@@ -24,12 +24,20 @@ import re
 import subprocess
 
 
-def self_costs(path, name):
-    """{address: self instructions} of the functions whose name contains `name`."""
+def self_costs(path, name, event="Ir"):
+    """{address: self cost} of the functions whose name contains `name`: instructions, or another
+    event the file holds (e.g. Bcm, mispredicted conditional branches, with --branch-sim=yes)."""
     names, costs = {}, collections.Counter()
     current, last, after_call = "", 0, False
+    column = 0
     for line in open(path):
         line = line.rstrip("\n")
+        if line.startswith("events:"):
+            events = line.split()[1:]
+            if event not in events:
+                raise SystemExit("hot_lines: the file has no event %s (it has %s)" % (event, " ".join(events)))
+            column = events.index(event)
+            continue
         m = re.match(r"^(c?)fn=\((\d+)\)(?: (.*))?$", line)
         if m:
             if m.group(3):
@@ -40,7 +48,7 @@ def self_costs(path, name):
         if line.startswith("calls="):
             after_call = True  # the next cost line is the call's inclusive cost
             continue
-        m = re.match(r"^(0x[0-9a-f]+|[+-]\d+|\*)\s+\S+\s+(\d+)", line)
+        m = re.match(r"^(0x[0-9a-f]+|[+-]\d+|\*)\s+\S+((?:\s+\d+)+)", line)
         if not m:
             continue
         a = m.group(1)
@@ -52,7 +60,9 @@ def self_costs(path, name):
             after_call = False
             continue
         if name in current:
-            costs[last] += int(m.group(2))
+            values = m.group(2).split()
+            if column < len(values):  # (callgrind leaves out trailing zeros)
+                costs[last] += int(values[column])
     return costs
 
 
@@ -63,8 +73,9 @@ def main():
     parser.add_argument("binary", help="the binary that ran, with debug information")
     parser.add_argument("--top", type=int, default=30)
     parser.add_argument("--depth", type=int, default=3, help="inlined frames shown per line")
+    parser.add_argument("--event", default="Ir", help="the cost to rank lines by (Ir; Bcm with --branch-sim=yes)")
     args = parser.parse_args()
-    costs = self_costs(args.callgrind_file, args.name)
+    costs = self_costs(args.callgrind_file, args.name, args.event)
     print("self", sum(costs.values()))
     addresses = sorted(costs)
     chains, current = {}, None
