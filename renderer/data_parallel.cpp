@@ -303,7 +303,7 @@ class RankTracer {
     Ray ray;
   };
   static bool isShort(const Ray& r) {
-    const Ray plain;
+    static const Ray plain;  // (built once: this runs for every ray asked of another rank)
     return !r.org64 && r.fromSurface == plain.fromSurface && r.fromInside == plain.fromInside &&
            r.fromCap == plain.fromCap && std::memcmp(&r.fromOffset, &plain.fromOffset, sizeof(Vec3d)) == 0;
   }
