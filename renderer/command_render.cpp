@@ -171,7 +171,8 @@ void onStopSignal(int signal) {
 }
 
 // Under MPI, rendering by tiles: tiles and busy seconds per rank (summed over the frames), and
-// busiest over idlest rank.
+// busiest over idlest rank; the tiles each rank handed to others (taken by ranks that ran out,
+// or dealt again between data-parallel passes).
 std::string rankFigures(const RankFigures* f) {
   if (!f || f->tiles.empty()) return "";
   std::string tiles, busy;
@@ -192,8 +193,12 @@ std::string rankFigures(const RankFigures* f) {
     dataParallel = "  \"rays_asked_per_rank\": " + list(f->raysAsked) + ",\n  \"rays_sent_per_rank\": " +
                    list(f->raysSent) + ",\n  \"rays_received_per_rank\": " + list(f->raysReceived) +
                    ",\n  \"bytes_sent_per_rank\": " +
-                   list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) +
-                   ",\n  \"tiles_moved_per_rank\": " + list(std::vector<double>(f->tilesMoved.begin(), f->tilesMoved.end())) + ",\n";
+                   list(f->bytesSent) + ",\n  \"exchange_seconds_per_rank\": " + list(f->waitSeconds) + ",\n";
+  }
+  if (!f->tilesMoved.empty()) {
+    std::string moved;
+    for (size_t r = 0; r < f->tilesMoved.size(); ++r) moved += (r ? ", " : "") + std::to_string(f->tilesMoved[r]);
+    dataParallel += "  \"tiles_moved_per_rank\": [" + moved + "],\n";
   }
   return "  \"tiles_per_rank\": [" + tiles + "],\n  \"busy_seconds_per_rank\": [" + busy + "],\n  \"balance\": " +
          jsonNumber(least > 0 ? most / least : 0) + ",\n" + dataParallel;

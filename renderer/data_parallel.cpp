@@ -769,30 +769,10 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   auto place = [&](int tile, const PixelSums* block) {
     forEachPixelInPacketOrder(tiles.rect(tile), [&](int x, int y) { frame[size_t(y) * size_t(w) + size_t(x)] = *block++; });
   };
-  if (rank == 0) {
+  if (rank == 0)
     for (int tile : mine.tiles) place(tile, mine.blocks[size_t(tile)].get());
-    std::vector<PixelSums> block(size_t(TileRenderer::kTile) * size_t(TileRenderer::kTile));
-    for (int q = 1; q < ranks; ++q) {
-      int count = 0;
-      MPI_Recv(&count, 1, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-      if (count < 0 || count > tiles.tiles()) job.abort(1);  // (a rank of this job sent it: cannot happen)
-      std::vector<int> ids(static_cast<size_t>(count));
-      MPI_Recv(ids.data(), count, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-      for (int tile : ids) {
-        if (tile < 0 || tile >= tiles.tiles()) job.abort(1);
-        const int n = tiles.rect(tile).pixels();
-        MPI_Recv(block.data(), int(size_t(n) * sizeof(PixelSums)), MPI_BYTE, q, kSums, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-        place(tile, block.data());
-      }
-    }
-  } else {
-    const int count = int(mine.tiles.size());
-    MPI_Send(&count, 1, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
-    MPI_Send(mine.tiles.data(), count, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
-    for (int tile : mine.tiles)
-      MPI_Send(mine.blocks[size_t(tile)].get(), int(size_t(tiles.rect(tile).pixels()) * sizeof(PixelSums)), MPI_BYTE, 0,
-               kSums, MPI_COMM_WORLD);
-  }
+  gatherTiles(
+      job, tiles, mine.tiles, [&](size_t i) { return mine.blocks[size_t(mine.tiles[i])].get(); }, place);
   result.seconds = since(start);
   constexpr int kFigures = 6;
   double asked[kFigures] = {tracer.raysAsked, tracer.raysSent, tracer.raysReceived, tracer.bytesSent, tracer.waitSeconds,

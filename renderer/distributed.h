@@ -1,9 +1,9 @@
 #pragma once
 // Rendering on many processes with MPI: `mpirun -np N isotrace render ...` runs the same
 // binary on every rank. Each rank loads the scene itself (volumes are read-only; every rank
-// holds a whole copy). One frame: rank 0 hands out whole tiles (all passes of a tile, so a
-// pixel's sums are the single-process sums, in the same order) to every rank including itself,
-// as they ask, and gathers them; only rank 0 writes the image. A sequence (--frames): frame f
+// holds a whole copy). One frame: every rank renders a fixed share of the tiles (all passes of a
+// tile, so a pixel's sums are the single-process sums, in the same order) and rank 0 gathers
+// them; only rank 0 writes the image. A sequence (--frames): frame f
 // goes to rank f mod N, which writes it. Started without an MPI launcher, nothing here touches
 // MPI and the render is the single-process one. The scene and the integrators know nothing
 // of this layer.
@@ -78,9 +78,13 @@ struct RankFigures {
   void add(const RankFigures& frame);
 };
 
-// One frame over all ranks; every rank calls it. On rank 0 `film` (and `direct`) get the image
-// and the result has the ray counters of all ranks; other ranks' films stay empty. Bit for bit
-// the image of renderFrame, whatever the ranks and threads.
+// One frame over all ranks; every rank calls it. Tile (x, y) is rank (x + y) mod N's (the
+// tiles dealt along the diagonals, so each rank gets its share of any region of the image); a
+// rank renders its tiles as renderFrame renders all of them (renderTiles: pass by pass, its
+// threads sharing the tiles) with no message until its tiles are done, then sends their sums to
+// rank 0. On rank 0 `film` (and `direct`) get the image and the result has the ray counters of
+// all ranks; other ranks' films stay empty. `figures`: per rank its tiles and its render seconds.
+// Bit for bit the image of renderFrame, whatever the ranks and threads.
 RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
 

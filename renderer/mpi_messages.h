@@ -8,19 +8,17 @@
 #include <vector>
 
 #include "integrators/integrator.h"
+#include "renderer/distributed.h"
+#include "renderer/render.h"
 
 namespace iso::mpi {
 
 // The tags of every message between ranks (one list, so that no two parts use one tag).
 enum Tag : int {
-  // Image-parallel (renderFrameDistributed). The work is a piece: the next passes of one tile,
-  // at least kPieceSamples samples. Rank 0 sends the tile's sums with it and gets them back with
-  // the samples added, so a pixel's sums grow in sample order whichever rank takes which passes.
-  kRequest = 1,  // rank -> 0: one more piece, please (no payload)
-  kPiece = 2,    // 0 -> rank: PieceHeader + the tile's sums so far; tile -1: no more
-  kResult = 3,   // rank -> 0: PieceHeader + the tile's sums with the piece's samples
-  kDone = 4,     // rank -> 0: every result sent, nothing more will come
-  // Data-parallel (renderFrameDataParallel), at the end of the frame:
+  // Image-parallel (renderFrameDistributed), while the ranks render:
+  kTakeRequest = 1,  // rank -> rank: it has rendered its tiles, may it take some of yours? (no payload)
+  kHanded = 2,       // the answer: a count of tiles (0: none), then each tile's place and sums
+  // At the end of a frame (image-parallel and data-parallel, gatherTiles):
   kTiles = 5,    // rank -> 0: how many tiles it rendered, then their indices
   kSums = 6,     // rank -> 0: those tiles' sums, a tile a message, in the same order
   // Data-parallel, between passes: a tile dealt to another rank, its index and sums (one message
@@ -59,6 +57,40 @@ std::vector<char> receive(const MPI_Status& status);
 // The same into `buffer` (resized to the message; a buffer reused for every message of a kind
 // is zeroed only where it grows).
 void receive(const MPI_Status& status, std::vector<char>& buffer);
+
+// Collective, at the end of a frame: rank 0 gathers the tiles every other rank rendered. Each
+// other rank sends how many tiles it has (`mine`), their indices, then each tile's sums
+// (`blockOf(i)` for the tile mine[i]: its pixels, as many as the tile has, in the order `place`
+// reads them), a tile a message; rank 0 calls place(tile, block) for each, rank by rank (its own
+// tiles are its caller's). A count or index out of range ends the job.
+template <class BlockOf, class Place>
+void gatherTiles(const MpiJob& job, const TileRenderer& tiles, const std::vector<int>& mine, BlockOf&& blockOf,
+                 Place&& place) {
+  if (job.rank() == 0) {
+    std::vector<PixelSums> block(size_t(TileRenderer::kTile) * size_t(TileRenderer::kTile));
+    for (int q = 1; q < job.size(); ++q) {
+      int count = 0;
+      MPI_Recv(&count, 1, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      if (count < 0 || count > tiles.tiles()) job.abort(1);  // (a rank of this job sent it: cannot happen)
+      std::vector<int> ids(static_cast<size_t>(count));
+      MPI_Recv(ids.data(), count, MPI_INT, q, kTiles, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      for (int tile : ids) {
+        if (tile < 0 || tile >= tiles.tiles()) job.abort(1);
+        const int n = tiles.rect(tile).pixels();
+        MPI_Recv(block.data(), int(size_t(n) * sizeof(PixelSums)), MPI_BYTE, q, kSums, MPI_COMM_WORLD,
+                 MPI_STATUS_IGNORE);
+        place(tile, static_cast<const PixelSums*>(block.data()));
+      }
+    }
+    return;
+  }
+  const int count = int(mine.size());
+  MPI_Send(&count, 1, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
+  MPI_Send(mine.data(), count, MPI_INT, 0, kTiles, MPI_COMM_WORLD);
+  for (size_t i = 0; i < mine.size(); ++i)
+    MPI_Send(blockOf(i), int(size_t(tiles.rect(mine[i]).pixels()) * sizeof(PixelSums)), MPI_BYTE, 0, kSums,
+             MPI_COMM_WORLD);
+}
 
 // Collective: every rank's counters summed into `total` on rank `root`.
 void sendCounters(const RayCounters& mine, RayCounters& total, int root);

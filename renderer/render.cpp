@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdio>
 #include <mutex>
+#include <thread>
 
 namespace iso {
 
@@ -83,21 +84,19 @@ thread_local TileWave t_wave;
 
 // Never inlined: bench/iso_vs_mesh.py --instructions and the callgrind breakdowns in
 // docs/BENCHMARKS.md count instructions inside this function (one tile's pass, either flow).
-[[gnu::noinline]] uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
-                                  bool stopPerPixel) const {
+[[gnu::noinline]] uint64_t TileRenderer::renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride,
+                                                    RayCounters& counters) const {
   const Rect r = rect(tile);
-  if (m_options.rayFlow == RayFlow::Scalar) return renderPassScalar(r, s0, s1, sums, stride, counters, stopPerPixel);
-  if (stopPerPixel && stopRequested()) return 0;
+  if (m_options.rayFlow == RayFlow::Scalar) return renderPassScalar(r, s0, s1, sums, stride, counters);
   return renderPassWavefront(r, s0, s1, sums, stride, counters);
 }
 
 uint64_t TileRenderer::renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
-                                        RayCounters& counters, bool stopPerPixel) const {
+                                        RayCounters& counters) const {
   uint64_t taken = 0;
   const uint64_t seedKey = Sampler::seedKey(m_options.seed);
   for (int y = r.y0; y < r.y1; ++y)
     for (int x = r.x0; x < r.x1; ++x) {
-      if (stopPerPixel && stopRequested()) return taken;
       PixelSums& p = sums[size_t(y - r.y0) * stride + size_t(x - r.x0)];
       if (p.converged) continue;
       const Sampler::PixelKey pixelKey = Sampler::pixelKey(seedKey, uint32_t(x), uint32_t(y));
@@ -139,27 +138,116 @@ uint64_t TileRenderer::renderPassWavefront(const Rect& r, int s0, int s1, PixelS
   return t.wave.size();
 }
 
-bool TileRenderer::renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums,
-                                RayCounters& counters) const {
-  const Rect r = rect(tile);
-  const int minSamples = std::min(m_options.spp, RenderOptions::kAdaptiveMinSamples);
-  const int end = std::min(m_options.spp, s0 + samples);
-  bool open = true;
-  while (open && s0 < end && !stopRequested()) {
-    const int s1 = nextPassStart(s0, pass, m_options.spp);
-    renderPass(tile, s0, s1, sums, size_t(r.x1 - r.x0), counters, true);
-    ++pass;
-    s0 = s1;
-    if (m_options.noiseThreshold > 0 && !stopRequested()) {
+ProgressBar::ProgressBar(const RenderOptions& options, uint64_t pixels)
+    : m_options(options), m_total(double(pixels) * options.spp), m_start(std::chrono::steady_clock::now()) {}
+
+void ProgressBar::add(uint64_t samples) {
+  m_done += samples;
+  if (m_options.workDone) *m_options.workDone += samples;
+  if (!m_options.progress) return;
+  std::unique_lock<std::mutex> lock(m_printing, std::try_to_lock);
+  if (lock) print(false);
+}
+
+void ProgressBar::finish() {
+  if (!m_options.progress || !m_printed) return;
+  std::lock_guard<std::mutex> lock(m_printing);
+  print(true);
+  std::fprintf(stderr, "\n");
+}
+
+void ProgressBar::print(bool final) {
+  const bool sequence = m_options.sequenceFrames > 1;
+  const double now = seconds(m_start);
+  if (!final && m_lastPrint >= 0 && now - m_lastPrint < 0.25) return;  // the first tile, then every quarter second
+  m_lastPrint = now;
+  const double frameFraction = std::min(1.0, double(m_done.load()) / std::max(1.0, m_total));
+  // A sequence's bar: its frames done and this one's share, over all its frames.
+  const double fraction =
+      sequence ? (m_options.sequenceFrame + frameFraction) / m_options.sequenceFrames : frameFraction;
+  const double elapsed = sequence ? seconds(m_options.sequenceStart) : now;
+  char e[32], eta[32], which[48] = "";
+  formatDuration(elapsed, e, sizeof e);
+  formatDuration(fraction > 0 ? elapsed * (1 - fraction) / fraction : 0, eta, sizeof eta);
+  if (sequence)
+    std::snprintf(which, sizeof which, "  frame %d/%d", m_options.sequenceFrame + 1, m_options.sequenceFrames);
+  const int bar = int(fraction * 30);
+  std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%%s  elapsed %s  ETA %s ", bar, "==============================", 30 - bar, "",
+               fraction * 100, which, e, fraction > 0 ? eta : "?");
+  std::fflush(stderr);
+  m_printed = true;
+}
+
+RenderResult renderTiles(const TileRenderer& tiles, TileSet& set, const RenderOptions& options, ProgressBar& progress,
+                         const std::function<void()>& between) {
+  tbb::enumerable_thread_specific<RayCounters> counters;
+  const auto start = std::chrono::steady_clock::now();
+  const std::thread::id caller = std::this_thread::get_id();
+  const int minSamples = std::min(options.spp, RenderOptions::kAdaptiveMinSamples);
+  // One pass of one tile, then the adaptive test of its pixels (a pixel's test reads only its
+  // own sums: the same decisions as a test over the whole frame after the pass).
+  auto renderTile = [&](TileSlot& slot) {
+    const int s1 = TileRenderer::nextPassStart(slot.s0, slot.pass, options.spp);
+    tiles.renderPass(slot.tile, slot.s0, s1, slot.first, slot.stride, counters.local());
+    const TileRenderer::Rect r = tiles.rect(slot.tile);
+    progress.add(uint64_t(r.pixels()) * uint64_t(s1 - slot.s0));
+    bool open = s1 < options.spp;
+    if (open && options.noiseThreshold > 0 && !stopRequested()) {
       open = false;
-      for (int i = 0; i < r.pixels(); ++i) {
-        PixelSums& p = sums[i];
-        if (!p.converged && p.samples >= minSamples) p.converged = converges(p);
-        open = open || !p.converged;
+      for (int y = 0; y < r.y1 - r.y0; ++y)
+        for (int x = 0; x < r.x1 - r.x0; ++x) {
+          PixelSums& p = slot.first[size_t(y) * slot.stride + size_t(x)];
+          if (!p.converged && p.samples >= minSamples) {
+            p.converged = tiles.converges(p);
+            if (p.converged) progress.add(uint64_t(options.spp - p.samples));  // (the progress bar's work)
+          }
+          open = open || !p.converged;
+        }
+    }
+    std::lock_guard<std::mutex> lock(set.mutex);
+    ++slot.pass;
+    slot.s0 = s1;
+    slot.open = open;
+    slot.busy = false;
+  };
+
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  RenderResult result;
+  std::vector<size_t> list;
+  // A stop request is honoured once the first pass is done: an interrupted image has every
+  // pixel sampled (a second Ctrl-C ends the process at once).
+  for (int pass = 0;; ++pass) {
+    bool later = false;
+    list.clear();
+    {
+      std::lock_guard<std::mutex> lock(set.mutex);
+      for (size_t i = 0; i < set.slots.size(); ++i) {
+        const TileSlot& slot = set.slots[i];
+        if (!slot.ours || !slot.open || slot.pass < pass) continue;
+        if (slot.pass == pass) list.push_back(i);
+        later = later || slot.pass > pass;
       }
     }
+    if (pass > 0 && stopRequested()) break;
+    if (list.empty() && !later) break;
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, list.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          TileSlot& slot = set.slots[list[i]];
+          {
+            std::lock_guard<std::mutex> lock(set.mutex);
+            if (!slot.ours || (pass > 0 && stopRequested())) continue;  // (handed to another rank meanwhile)
+            slot.busy = true;
+          }
+          renderTile(slot);
+          if (between && std::this_thread::get_id() == caller) between();
+        }
+      });
+    });
   }
-  return open && s0 < m_options.spp;
+  result.seconds = seconds(start);
+  for (const RayCounters& c : counters) result.counters.add(c);
+  return result;
 }
 
 RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
@@ -167,82 +255,15 @@ RenderResult renderFrame(const Camera& camera, const Integrator& integrator,
   const int w = film.width(), h = film.height();
   const TileRenderer tiles(camera, integrator, options, w, h);
   std::vector<PixelSums> sums(size_t(w) * h);
-  tbb::enumerable_thread_specific<RayCounters> counters;
-  const auto start = std::chrono::steady_clock::now();
-  const double totalWork = double(w) * h * options.spp;
-  std::atomic<uint64_t> done{0};
-  std::mutex printing;
-  double lastPrint = -1;  // the bar shows at the first tile, then every quarter of a second
-  bool printed = false;
-  auto progress = [&](bool final) {
-    const bool sequence = options.sequenceFrames > 1;
-    const double now = seconds(start);
-    if (!final && lastPrint >= 0 && now - lastPrint < 0.25) return;
-    lastPrint = now;
-    const double frameFraction = std::min(1.0, done.load() / totalWork);
-    // A sequence's bar: its frames done and this one's share, over all its frames.
-    const double fraction = sequence ? (options.sequenceFrame + frameFraction) / options.sequenceFrames : frameFraction;
-    const double elapsed = sequence ? seconds(options.sequenceStart) : now;
-    char e[32], eta[32], which[48] = "";
-    formatDuration(elapsed, e, sizeof e);
-    formatDuration(fraction > 0 ? elapsed * (1 - fraction) / fraction : 0, eta, sizeof eta);
-    if (sequence) std::snprintf(which, sizeof which, "  frame %d/%d", options.sequenceFrame + 1, options.sequenceFrames);
-    const int bar = int(fraction * 30);
-    std::fprintf(stderr, "\r[%.*s%*s] %5.1f%%%s  elapsed %s  ETA %s ", bar, "==============================",
-                 30 - bar, "", fraction * 100, which, e, fraction > 0 ? eta : "?");
-    std::fflush(stderr);
-    printed = true;
-  };
-
-  auto renderTile = [&](int tile, int s0, int s1) {
-    const TileRenderer::Rect r = tiles.rect(tile);
-    PixelSums* first = &sums[size_t(r.y0) * w + r.x0];
-    tiles.renderPass(tile, s0, s1, first, size_t(w), counters.local());
-    done += uint64_t(r.pixels()) * (s1 - s0);
-    if (options.workDone) *options.workDone += uint64_t(r.pixels()) * (s1 - s0);
-    if (options.progress) {
-      std::unique_lock<std::mutex> lock(printing, std::try_to_lock);
-      if (lock) progress(false);
-    }
-  };
-
-  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
-  RenderResult result;
-  // A stop request is honoured once the first pass is done: an interrupted image has every
-  // pixel sampled (a second Ctrl-C ends the process at once).
-  for (int pass = 0, s0 = 0; s0 < options.spp && (pass == 0 || !stopRequested()); ++pass) {
-    const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp);
-    arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<int>(0, tiles.tiles(), 1), [&](const tbb::blocked_range<int>& r) {
-        for (int t = r.begin(); t < r.end(); ++t)
-          if (pass == 0 || !stopRequested()) renderTile(t, s0, s1);
-      });
-    });
-    s0 = s1;
-    if (options.noiseThreshold > 0 && !stopRequested()) {
-      const int minSamples = std::min(options.spp, RenderOptions::kAdaptiveMinSamples);
-      bool open = false;
-      for (PixelSums& p : sums) {
-        if (p.converged || p.samples < minSamples) {
-          open = open || !p.converged;
-          continue;
-        }
-        p.converged = tiles.converges(p);
-        if (p.converged) {  // the progress bar's work
-          done += uint64_t(options.spp - p.samples);
-          if (options.workDone) *options.workDone += uint64_t(options.spp - p.samples);
-        }
-        open = open || !p.converged;
-      }
-      if (!open) break;
-    }
+  TileSet set;
+  set.slots.reserve(size_t(tiles.tiles()));
+  for (int t = 0; t < tiles.tiles(); ++t) {
+    const TileRenderer::Rect r = tiles.rect(t);
+    set.slots.push_back(TileSlot{t, &sums[size_t(r.y0) * size_t(w) + size_t(r.x0)], size_t(w)});
   }
-  result.seconds = seconds(start);
-  if (options.progress && printed) {
-    progress(true);
-    std::fprintf(stderr, "\n");
-  }
-  for (const RayCounters& c : counters) result.counters.add(c);
+  ProgressBar progress(options, uint64_t(w) * uint64_t(h));
+  RenderResult result = renderTiles(tiles, set, options, progress);
+  progress.finish();
   resolveFrame(sums, options, film, directFilm, result);
   return result;
 }

@@ -9,6 +9,8 @@
 #include <chrono>
 #include <cstdint>
 #include <csignal>
+#include <functional>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -149,8 +151,8 @@ struct PixelSums {
 }
 
 // The frame's tiles (16x16 pixels) and how samples reach a tile's pixels, pass by pass: the
-// single-process renderFrame and the MPI layer (renderer/distributed.h), which hands out one
-// pass of one tile at a time, share it, so a pixel gets the same sums in the same order.
+// single-process renderFrame, the view and the MPI layers (renderer/distributed.h), whose ranks
+// render shares of the tiles, share it, so a pixel gets the same sums in the same order.
 class TileRenderer {
  public:
   static constexpr int kTile = 16;
@@ -163,24 +165,15 @@ class TileRenderer {
   int tiles() const { return m_tilesX * m_tilesY; }
   Rect rect(int tile) const;
   // Samples [s0, s1) of every pixel of `tile` that has not converged, into `sums` (pixel (x0,
-  // y0) of the tile at sums[0], rows `stride` apart). `stopPerPixel`: a stop request ends the
-  // tile at the next pixel instead of the next tile. Returns the samples taken.
-  // With the wavefront flow a stop request is looked at once, before the tile's pass.
-  uint64_t renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
-                      bool stopPerPixel = false) const;
-  // Passes of `tile` from pass `pass` (its first sample `s0`) on, with the adaptive test after
-  // each as renderFrame does it, until at least `samples` more samples (or spp) are reached or
-  // no pixel of the tile is open; a stop request ends it at the next pixel. `pass` and `s0`
-  // come back as the next pass; returns whether the tile has open pixels left.
-  bool renderPasses(int tile, int& pass, int& s0, int samples, PixelSums* sums, RayCounters& counters) const;
+  // y0) of the tile at sums[0], rows `stride` apart). Returns the samples taken.
+  uint64_t renderPass(int tile, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters) const;
   // The passes: [passStart(i), passStart(i + 1)) holds 1, 1, 2, 4, 8, 16, 16, ... samples.
   static int nextPassStart(int passStart, int pass, int spp);
   // Adaptive sampling: after a pass, whether pixel `p` takes no more samples.
   bool converges(const PixelSums& p) const;
 
  private:
-  uint64_t renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters,
-                            bool stopPerPixel) const;
+  uint64_t renderPassScalar(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride, RayCounters& counters) const;
   uint64_t renderPassWavefront(const Rect& r, int s0, int s1, PixelSums* sums, size_t stride,
                                RayCounters& counters) const;
 
@@ -189,6 +182,55 @@ class TileRenderer {
   const RenderOptions& m_options;
   int m_width, m_height, m_tilesX, m_tilesY;
 };
+
+// The progress bar on stderr (options.progress) and the work counter (options.workDone) of a
+// render of `pixels` pixels at options.spp: add() from any thread as samples are taken (or
+// skipped by adaptive sampling), finish() once at the end.
+class ProgressBar {
+ public:
+  ProgressBar(const RenderOptions& options, uint64_t pixels);
+  void add(uint64_t samples);
+  void finish();
+
+ private:
+  void print(bool final);
+  const RenderOptions& m_options;
+  double m_total;
+  std::chrono::steady_clock::time_point m_start;
+  std::atomic<uint64_t> m_done{0};
+  std::mutex m_printing;
+  double m_lastPrint = -1;
+  bool m_printed = false;
+};
+
+// One tile of a render, as renderTiles works through its passes: where its sums are (pixel
+// (x0, y0) of the tile at `first`, rows `stride` apart) and how far its passes have gone.
+struct TileSlot {
+  int tile = 0;
+  PixelSums* first = nullptr;
+  size_t stride = 0;
+  int pass = 0, s0 = 0;  // its next pass and that pass's first sample
+  bool open = true;      // pixels that take more samples (after each pass: the adaptive test)
+  bool ours = true;      // false once handed to another rank (renderer/distributed.h)
+  bool busy = false;     // a render thread is on it
+};
+
+// The tiles a render works through; `mutex` guards the slots' pass, s0, open, ours and busy
+// while renderTiles runs (the MPI layer hands idle tiles to other ranks meanwhile).
+struct TileSet {
+  std::vector<TileSlot> slots;
+  std::mutex mutex;
+};
+
+// renderFrame's loop over some of a frame's tiles (all of them in one process; a rank's share
+// under MPI): pass by pass over the set's open tiles that are still ours, each pass TBB-parallel
+// on options.threads threads, each tile's adaptive test after its pass; a tile starts at its own
+// next pass (tiles taken from another rank join at theirs). A stop request is honoured once a
+// tile's first pass is done. `between`, if set, runs on the calling thread after each tile it
+// renders (where the MPI layer answers other ranks). Returns the counters and the seconds; the
+// caller resolves the frame.
+RenderResult renderTiles(const TileRenderer& tiles, TileSet& set, const RenderOptions& options, ProgressBar& progress,
+                         const std::function<void()>& between = {});
 
 // Averages the sums into `film` (and `direct`, and the AOV layers the options ask for), and the
 // sample figures and `interrupted` of `result`.

@@ -84,14 +84,44 @@ TEST(Mpi, RanksRenderTheSingleProcessImageBitForBit) {
       EXPECT_EQ(stats["ranks"], ranks);
       EXPECT_EQ(stats["spp"], single["spp"]);
       EXPECT_EQ(stats["spp_mean"], single["spp_mean"]);
-      // Every rank took pieces, and every tile went out at least once (9 tiles).
-      int pieces = 0;
-      for (const auto& n : stats["tiles_per_rank"]) {
-        EXPECT_GT(n.get<int>(), 0) << stats.dump();
-        pieces += n.get<int>();
-      }
-      EXPECT_GE(pieces, 9);
+      // Every tile ends on one rank (9 tiles).
+      int tiles = 0;
+      for (const auto& n : stats["tiles_per_rank"]) tiles += n.get<int>();
+      EXPECT_EQ(tiles, 9) << stats.dump();
     }
+  }
+}
+
+// A rank that runs out of tiles takes idle ones from the others (their sums and next pass with
+// them). ISOTRACE_TEST_DEAL=first deals every tile to rank 0, so the other ranks render only
+// what they take: the image is still the single process's, bit for bit, with adaptive sampling
+// and every layer, and every tile ends on one rank.
+TEST(Mpi, RanksThatRunOutTakeTilesFromOthers) {
+  const std::string dir = test::scratchDir();
+  std::string scene = pathScene();
+  scene.replace(scene.find("\"width\": 40, \"height\": 36"), 25, "\"width\": 96, \"height\": 64");  // 6x4 tiles
+  test::writeText(dir + "/s.json", scene);
+  const std::string flags = " --integrator path --spp 40 --adaptive 0.2 --aov albedo,normal,depth,variance,samples --quiet";
+  ASSERT_EQ(runIsotrace("render " + dir + "/s.json" + flags + " --threads 1 -o " + dir + "/one.exr --stats " + dir +
+                        "/one.json")
+                .status,
+            0);
+  const std::vector<float> reference = readExr(dir + "/one.exr");
+  ASSERT_FALSE(reference.empty());
+  for (int ranks : {2, 3}) {
+    SCOPED_TRACE(ranks);
+    const std::string out = dir + "/taken" + std::to_string(ranks);
+    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_DEAL=first " + ISOTRACE_BINARY + " render " + dir +
+                              "/s.json" + flags + " --threads 1 -o " + out + ".exr --stats " + out + ".json");
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(readExr(out + ".exr"), reference);
+    const nlohmann::json stats = readJson(out + ".json");
+    expectSameRays(stats, readJson(dir + "/one.json"));
+    int tiles = 0;
+    for (int q = 0; q < ranks; ++q) tiles += stats["tiles_per_rank"][size_t(q)].get<int>();
+    EXPECT_EQ(tiles, 24) << stats.dump();
+    EXPECT_GT(stats["tiles_moved_per_rank"][0].get<int>(), 0) << "rank 0 handed tiles over: " << stats.dump();
+    EXPECT_GT(stats["tiles_per_rank"][1].get<int>(), 0) << "rank 1 took tiles: " << stats.dump();
   }
 }
 
@@ -497,8 +527,9 @@ TEST(Mpi, WatertightAcrossRanksUnderMpirun) {
 }
 
 // The hostile cases of a data-parallel run: a rank killed mid-frame ends the whole run (mpirun
-// names it; nobody waits for its answers forever), and a truncated OpenVDB file on one rank only
-// is one line from rank 0 naming that rank, no image.
+// names it; nobody waits for its answers forever; the same for an image-parallel run, where the
+// others would wait for its tiles), and a truncated OpenVDB file on one rank only is one line
+// from rank 0 naming that rank, no image.
 TEST(Mpi, DataParallelRankLostOrBadFileEndsTheRun) {
   const std::string dir = test::scratchDir();
   const std::string vdb = test::dataPath("volumes/smoke.vdb");
@@ -509,9 +540,10 @@ TEST(Mpi, DataParallelRankLostOrBadFileEndsTheRun) {
   test::writeText(dir + "/good.json", scene(vdb));
   const std::string image = dir + "/out.exr";
   const auto t0 = std::chrono::steady_clock::now();
-  {
-    test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/good.json --data-parallel --spp 1000000 --threads 1 -o " +
-                      image + " >/dev/null");
+  for (const std::string mode : {" --data-parallel", ""}) {  // (image-parallel: a rank rendering or taking tiles)
+    SCOPED_TRACE(mode);
+    test::Process run(mpirun(2) + ISOTRACE_BINARY + " render " + dir + "/good.json" + mode +
+                      " --spp 1000000 --threads 1 -o " + image + " >/dev/null");
     ASSERT_TRUE(run.waitForErr("isotrace: rendering")) << run.err();  // every rank is past loading
     const std::vector<pid_t> ranks = test::processesWithArgument(ISOTRACE_BINARY, dir + "/good.json");
     ASSERT_EQ(ranks.size(), 2u) << run.err();
