@@ -70,7 +70,7 @@ class RankTiles {
   }
 
   // Once its own tiles are done: asks the other ranks in turn for tiles and renders what they
-  // hand over, until each has said it has none to give one after the other (or a stop request);
+  // hand over (which a rank that runs out may take from it in turn), until each has said it has none to give one after the other (or a stop request);
   // then waits for every rank to be done, answering requests with "none" meanwhile. The result's
   // seconds are those spent rendering.
   RenderResult takeFromOthers(ProgressBar& progress) {
@@ -94,7 +94,7 @@ class RankTiles {
         continue;
       }
       none = 0;
-      const RenderResult part = renderTiles(m_tiles, m_taken, m_options, progress, [&] { answer(nullptr); });
+      const RenderResult part = renderTiles(m_tiles, m_taken, m_options, progress, [&] { answer(&m_taken); });
       result.counters.add(part.counters);
       result.seconds += part.seconds;
     }
@@ -123,8 +123,8 @@ class RankTiles {
     return TileSlot{tile, block, size_t(r.x1 - r.x0)};
   }
 
-  // Answers every request for tiles that has come: from `from` (the dealt tiles while they
-  // render), about half of what is left that no thread is on (the tiles furthest behind first);
+  // Answers every request for tiles that has come: from `from` (the tiles being rendered,
+  // dealt or taken), about half of what is left that no thread is on (the tiles furthest behind first);
   // nothing once the frame is stopped or when `from` is null.
   void answer(TileSet* from) {
     for (;;) {
