@@ -62,7 +62,7 @@ class RankTiles {
   }
 
   // Renders the dealt tiles; between two of its tiles the calling (main) thread answers the
-  // other ranks' requests with some of the tiles no thread has started.
+  // other ranks' requests with some of the tiles no thread is on.
   RenderResult renderDealt(ProgressBar& progress) {
     if (dealAllToFirstForTest() && m_job.rank() == 0)
       for (; m_answered < m_job.size() - 1; std::this_thread::yield()) answer(&m_dealt);
@@ -70,9 +70,9 @@ class RankTiles {
   }
 
   // Once its own tiles are done: asks the other ranks in turn for tiles and renders what they
-  // hand over (which a rank that runs out may take from it in turn), until each has said it has none to give one after the other (or a stop request);
-  // then waits for every rank to be done, answering requests with "none" meanwhile. The result's
-  // seconds are those spent rendering.
+  // hand over (a rank that runs out may take some of them from it in turn), until every other
+  // rank has said in a row that it has none (or a stop request); then waits for every rank to be
+  // done, answering requests with "none" meanwhile. The result's seconds are those spent rendering.
   RenderResult takeFromOthers(ProgressBar& progress) {
     RenderResult result;
     const int ranks = m_job.size(), rank = m_job.rank();
@@ -83,7 +83,8 @@ class RankTiles {
         if (status.MPI_TAG != kHanded || status.MPI_SOURCE != from) return false;
         receive(status, m_bytes);
         if (!takeHanded(m_bytes)) {
-          std::fprintf(stderr, "isotrace: rank %d handed over malformed tiles (%zu bytes)\n", from, m_bytes.size());
+          std::fprintf(stderr, "isotrace: %srank %d handed over malformed tiles (%zu bytes)\n", m_job.where().c_str(), from,
+                       m_bytes.size());
           m_job.abort(1);
         }
         return true;
