@@ -9,6 +9,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <functional>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -639,6 +640,24 @@ int render(const RenderFlags& flags) {
     if (!error.empty()) {
       if (job.rank() == 0) std::fprintf(stderr, "isotrace: %s\n", error.c_str());
       return stopRequested() ? 130 : 2;
+    }
+    // Every rank must render the same frames (an MPMD launch may give ranks other scenes or
+    // flags): tiles and samples of different frames would be gathered into a wrong image.
+    const RenderSettings& s = setup.scene.settings;
+    char settings[256];
+    std::snprintf(settings, sizeof settings,
+                  "%dx%d, %d spp, seed %llu, %s, depth %d, ao distance %.17g, clamp %.17g, noise threshold %.17g, %d "
+                  "frame(s)%s%s",
+                  s.width, s.height, s.spp, (unsigned long long)s.seed, s.integrator.c_str(), s.maxDepth, s.aoDistance,
+                  s.clampIndirect, s.noiseThreshold, setup.seq.frames, s.dataParallel ? ", data-parallel" : "",
+                  setup.video ? ", video" : "");
+    if (!job.sameOnEveryRank(std::hash<std::string>()(settings))) {
+      if (job.rank() == 0)
+        std::fprintf(stderr,
+                     "isotrace: the ranks were given different render settings (rank 0: %s): every rank must render "
+                     "the same frames\n",
+                     settings);
+      return 2;
     }
     if (setup.scene.settings.dataParallel && world) {
       try {

@@ -45,6 +45,8 @@ class MpiJob {
   std::string firstError(const std::string& mine) const;
   // Collective: the sum of `v` over all ranks, on every rank.
   int sum(int v) const;
+  // Collective: whether every rank passed the same `v`, on every rank.
+  bool sameOnEveryRank(uint64_t v) const;
   // The collectives `isotrace watertight --data-parallel` combines its ranks' answers with.
   RankExchange rankExchange() const;
   // Collective: the union of every rank's box [lower, upper] (an empty one: lower > upper), on

@@ -157,6 +157,14 @@ int MpiJob::sum(int v) const {
   return total;
 }
 
+bool MpiJob::sameOnEveryRank(uint64_t v) const {
+  if (!distributed()) return true;
+  uint64_t lowest = v, highest = v;
+  MPI_Allreduce(MPI_IN_PLACE, &lowest, 1, MPI_UINT64_T, MPI_MIN, MPI_COMM_WORLD);
+  MPI_Allreduce(MPI_IN_PLACE, &highest, 1, MPI_UINT64_T, MPI_MAX, MPI_COMM_WORLD);
+  return lowest == highest;
+}
+
 void MpiJob::unionOfBounds(Vec3d& lower, Vec3d& upper) const {
   double lo[3] = {lower.x, lower.y, lower.z}, hi[3] = {-upper.x, -upper.y, -upper.z}, v[6];
   double mine[6] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]};

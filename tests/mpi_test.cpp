@@ -177,8 +177,8 @@ TEST(Mpi, DenoisedOnceOnTheGatheredImage) {
   }
 }
 
-// Bad input seen by one rank only (MPMD: rank 1 gets another scene): one line from rank 0
-// naming that rank and the file, status 2, no image, no hang. A rank that crashes ends the run
+// Bad input seen by one rank only (MPMD: rank 1 gets another scene, or other settings): one line
+// from rank 0 naming that rank and the file, status 2, no image, no hang. A rank that crashes ends the run
 // too (mpirun kills the others), with no image left behind.
 TEST(Mpi, ARankThatFailsEndsTheRun) {
   const std::string dir = test::scratchDir();
@@ -194,6 +194,17 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
   EXPECT_NE(r.err.find(expected), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("isotrace:", r.err.find(expected) + 1), std::string::npos) << "one line from isotrace: " << r.err;
   EXPECT_FALSE(fs::exists(image));
+
+  // Ranks given different render settings (here the samples, in both modes): their tiles would
+  // be gathered into a wrong image. One line from rank 0, status 2, no image.
+  for (const std::string mode : {"", " --data-parallel"}) {
+    const auto d = runCommand(mpirun(1) + ISOTRACE_BINARY + common + mode + " --spp 4 " + dir + "/good.json : -np 1 " +
+                              ISOTRACE_BINARY + common + mode + " --spp 5 " + dir + "/good.json");
+    EXPECT_EQ(d.status, 2) << mode << d.err;
+    EXPECT_NE(d.err.find("isotrace: the ranks were given different render settings"), std::string::npos) << d.err;
+    EXPECT_EQ(d.err.find("isotrace:", d.err.find("isotrace:") + 1), std::string::npos) << "one line: " << d.err;
+    EXPECT_FALSE(fs::exists(image));
+  }
 
   // Rank 1 crashes while it loads: its volume is a named pipe, so the test knows it is loading
   // (past MPI's start on every rank) once the pipe opens for writing.
