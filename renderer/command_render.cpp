@@ -9,9 +9,9 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
-#include <functional>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <optional>
 #include <regex>

@@ -48,8 +48,9 @@ class RankTiles {
             int width)
       : m_job(job), m_tiles(tiles), m_options(options), m_frame(frame), m_width(width) {}
 
-  // The tiles this rank was dealt, their sums in the frame (rank 0) or in blocks of its own.
-  void deal(const std::vector<int>& dealt) {
+  // The tiles this rank was dealt, their sums in the frame (rank 0) or in blocks of its own;
+  // returns their pixels.
+  size_t deal(const std::vector<int>& dealt) {
     size_t pixels = 0;
     for (int t : dealt) pixels += size_t(m_tiles.rect(t).pixels());
     if (m_job.rank() != 0) m_dealtSums.resize(pixels);
@@ -59,6 +60,7 @@ class RankTiles {
       m_dealt.slots.push_back(slotFor(t, m_dealtSums.data() + at));
       at += size_t(m_tiles.rect(t).pixels());
     }
+    return pixels;
   }
 
   // Renders the dealt tiles; between two of its tiles the calling (main) thread answers the
@@ -256,10 +258,11 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
   const int w = film.width(), h = film.height();
   const TileRenderer tiles(camera, integrator, options, w, h);
   const int rank = job.rank(), ranks = job.size();
-  const int tilesX = (w + TileRenderer::kTile - 1) / TileRenderer::kTile;
   std::vector<int> dealt;
-  for (int t = 0; t < tiles.tiles(); ++t)
-    if (ownerOf(t % tilesX, t / tilesX, ranks) == rank) dealt.push_back(t);
+  for (int t = 0; t < tiles.tiles(); ++t) {
+    const TileRenderer::Rect r = tiles.rect(t);
+    if (ownerOf(r.x0 / TileRenderer::kTile, r.y0 / TileRenderer::kTile, ranks) == rank) dealt.push_back(t);
+  }
 
   // The sums, allocated (and zeroed) before the frame's clock starts, as renderFrame allocates
   // its own (on this kind of VM the page faults of ~40 MB of sums cost ~0.1 s, which is not
@@ -267,12 +270,10 @@ RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Int
   // one block after another, about 1 / ranks of a frame's.
   std::vector<PixelSums> sums(rank == 0 ? size_t(w) * size_t(h) : 0);
   RankTiles mine(job, tiles, options, sums, w);
-  mine.deal(dealt);
+  const size_t pixels = mine.deal(dealt);
 
-  uint64_t pixels = 0;  // (the bar shows this rank's share)
-  for (int t : dealt) pixels += uint64_t(tiles.rect(t).pixels());
   const auto start = Clock::now();
-  ProgressBar progress(options, pixels);
+  ProgressBar progress(options, pixels);  // (the bar shows this rank's share)
   RenderResult own = mine.renderDealt(progress);
   const RenderResult taken = mine.takeFromOthers(progress);
   own.counters.add(taken.counters);

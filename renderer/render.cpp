@@ -216,7 +216,7 @@ RenderResult renderTiles(const TileRenderer& tiles, TileSet& set, const RenderOp
   std::vector<size_t> list;
   // A stop request is honoured once the first pass is done: an interrupted image has every
   // pixel sampled (a second Ctrl-C ends the process at once).
-  for (int pass = 0;; ++pass) {
+  for (int pass = 0; pass == 0 || !stopRequested(); ++pass) {
     bool later = false;
     list.clear();
     {
@@ -228,7 +228,6 @@ RenderResult renderTiles(const TileRenderer& tiles, TileSet& set, const RenderOp
         later = later || slot.pass > pass;
       }
     }
-    if (pass > 0 && stopRequested()) break;
     if (list.empty() && !later) break;
     arena.execute([&] {
       tbb::parallel_for(tbb::blocked_range<size_t>(0, list.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
