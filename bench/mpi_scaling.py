@@ -19,10 +19,11 @@ machine's speed can change by 30% from one run to the next).
 --data-parallel: both renders with --data-parallel (the ranks each hold part of every volume
 and answer each other's rays; one process is the same render whole); also prints the rays the
 ranks asked each other about, the bytes they sent per frame and the seconds they spent in the
-exchanges.
+exchanges. --replicate F: the ranks also hold copies of the bricks around their parts, up to F of
+each volume (render --replicate).
 
 Usage: bench/mpi_scaling.py [--runs 3] [--ranks 2] [--threads 1] [--resolution 960x540]
-       [--spp 16] [--data-parallel] [--against OTHER_ISOTRACE] [--with-threads] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
+       [--spp 16] [--data-parallel [--replicate F]] [--against OTHER_ISOTRACE] [--with-threads] [SCENE.json ...]      (default: bench/scenes/gyroid_ball.json)
 """
 import argparse
 import json
@@ -54,6 +55,8 @@ def main():
     parser.add_argument("--resolution", default="960x540")
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--data-parallel", action="store_true")
+    parser.add_argument("--replicate", type=float, help="with --data-parallel: each rank's copies of other ranks' bricks "
+                        "(render --replicate), a fraction of each volume")
     parser.add_argument("--against", help="another build's isotrace: its N-rank renders in turn with this one's")
     parser.add_argument("--with-threads", action="store_true",
                         help="also one process with ranks x threads threads, in the same runs")
@@ -63,6 +66,10 @@ def main():
     args = ["--resolution", a.resolution, "--spp", str(a.spp), "--threads", str(a.threads), "--seed", "7"]
     if a.data_parallel:
         args.append("--data-parallel")
+        if a.replicate is not None:
+            args += ["--replicate", repr(a.replicate)]
+    elif a.replicate is not None:
+        sys.exit("mpi_scaling: --replicate is for --data-parallel")
     # busy per rank: the seconds each rank's render threads spent in pieces (wall time of the
     # pieces): their sum over the 1-process seconds is what running beside MPI costs the work.
     print("| scene | 1 process s | %d ranks s | speed-up | pieces/s | balance | busy per rank s | same image |" % a.ranks)

@@ -38,11 +38,15 @@ const char* lightKindName(Light::Kind k) {
 
 // --ranks N: how a data-parallel render would split each volume (volume/partition.h): each
 // rank's box of whole bricks, balanced by the bricks active for the volume's iso-surfaces, and
-// what the rank would hold of it.
-void printPartition(const World& world, const std::string& path, int ranks) {
+// what the rank would hold of it (with "replicate", its box and the copies of its neighbours'
+// bricks around it).
+void printPartition(const World& world, const std::string& path, int ranks, double replicate) {
   std::printf("  data-parallel over %d ranks (render --data-parallel): each holds only its box of each volume "
               "(files and procedural fields are read only for it, OpenVDB and multi-frame DICOM files too; ASCII data whole, then cut); meshes, lights "
               "and the camera on every rank\n", ranks);
+  if (replicate > 0)
+    std::printf("  with \"replicate\": %g, each rank also holds copies of the bricks around its box, at most %g of each volume's bricks\n",
+                replicate, replicate);
   for (size_t v = 0; v < world.volumes().size(); ++v) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
@@ -55,7 +59,8 @@ void printPartition(const World& world, const std::string& path, int ranks) {
     const double whole = double(g.bytes() + bricks.bytes());
     double largest = 0;
     for (size_t r = 0; r < boxes.size(); ++r) {
-      const RankBox& box = boxes[r];
+      const RankBox& own = boxes[r];
+      const RankBox box = heldBox(own, bricks, replicate);
       // What the rank holds: its samples (a sparse grid: its bricks' stored blocks) and brick ranges.
       double bytes = double(box.bricks) * 2 * sizeof(float);
       if (const SparseSamples* sparse = g.sparse()) {
@@ -69,16 +74,20 @@ void printPartition(const World& world, const std::string& path, int ranks) {
       largest = std::max(largest, bytes);
       Vec3d lo{INFINITY, INFINITY, INFINITY}, hi = -lo;
       for (int c = 0; c < 8; ++c) {
-        const Vec3d cell{double(c & 1 ? box.cellHi.x : box.cellLo.x), double(c & 2 ? box.cellHi.y : box.cellLo.y),
-                         double(c & 4 ? box.cellHi.z : box.cellLo.z)};
+        const Vec3d cell{double(c & 1 ? own.cellHi.x : own.cellLo.x), double(c & 2 ? own.cellHi.y : own.cellLo.y),
+                         double(c & 4 ? own.cellHi.z : own.cellLo.z)};
         const Vec3d w = vi.transform.point(g.origin() + cell * g.spacing());
         lo = min(lo, w);
         hi = max(hi, w);
       }
       std::printf("    volume %zu, rank %zu: cells [%d, %d) x [%d, %d) x [%d, %d), world (%g, %g, %g) to (%g, %g, %g); "
-                  "%.2f MiB, %.0f of %zu bricks active\n",
-                  v, r, box.cellLo.x, box.cellHi.x, box.cellLo.y, box.cellHi.y, box.cellLo.z, box.cellHi.z, lo.x, lo.y,
-                  lo.z, hi.x, hi.y, hi.z, bytes / 1048576.0, box.weight, box.bricks);
+                  "%.2f MiB, %.0f of %zu bricks active",
+                  v, r, own.cellLo.x, own.cellHi.x, own.cellLo.y, own.cellHi.y, own.cellLo.z, own.cellHi.z, lo.x, lo.y,
+                  lo.z, hi.x, hi.y, hi.z, bytes / 1048576.0, own.weight, own.bricks);
+      if (box.bricks > own.bricks)
+        std::printf("; holds cells [%d, %d) x [%d, %d) x [%d, %d) (%zu bricks, %zu of them copies)", box.cellLo.x, box.cellHi.x,
+                    box.cellLo.y, box.cellHi.y, box.cellLo.z, box.cellHi.z, box.bricks, box.bricks - own.bricks);
+      std::printf("\n");
     }
     std::printf("    volume %zu: the largest rank holds %.2f MiB, %.0f%% of the whole volume's %.2f MiB\n", v,
                 largest / 1048576.0, 100 * largest / std::max(whole, 1.0), whole / 1048576.0);
@@ -186,7 +195,7 @@ int info(const std::string& path, const SceneOverrides& overrides, int ranks) {
     std::printf("    %d %s%s\n", count, kind.c_str(),
                 kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
   if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
-  if (ranks > 0) printPartition(world, path, ranks);
+  if (ranks > 0) printPartition(world, path, ranks, scene.settings.replicate);
   for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
   std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
   return 0;

@@ -36,7 +36,7 @@ struct RenderFlags {
   long long seed = -1;
   bool quiet = false, alpha = false, allowLarge = false, colorbar = false, dataParallel = false, keepFrames = false;
   std::optional<double> fps;
-  std::optional<double> exposure, clamp, adaptive;
+  std::optional<double> exposure, clamp, adaptive, replicate;
   SceneOverrides overrides;
 };
 
@@ -119,6 +119,13 @@ void applyFlags(const RenderFlags& f, SceneDesc& scene) {
                          std::to_string(kMaxFilmPixels) + " pixels (~" +
                          std::to_string(kMaxFilmPixels * 170 >> 30) + " GiB to render); --allow-large renders it anyway");
   if (f.dataParallel) s.dataParallel = true;
+  if (f.replicate) {
+    if (!(*f.replicate >= 0 && *f.replicate <= 1)) throw InputError("--replicate", "", "expected a fraction of the volume in [0, 1]");
+    s.replicate = *f.replicate;
+  }
+  if (s.replicate > 0 && !s.dataParallel)
+    throw InputError(f.replicate ? "--replicate" : scene.path, f.replicate ? "" : "/integrator/replicate",
+                     "copies of other ranks' bricks are for data-parallel rendering (--data-parallel or \"distribution\": \"data\")");
   if (f.denoiseGiven) {
     const std::string mode = f.denoise.empty() ? "quality" : f.denoise;
     if (!parseDenoiseMode(mode, s.denoise))
@@ -702,6 +709,9 @@ Command addRenderCommand(CLI::App& app) {
   cmd->add_flag("--data-parallel", f.dataParallel,
                 "under mpirun: each rank holds only its part of each volume and the ranks answer each other's rays "
                 "(\"distribution\": \"data\"; docs/distributed.md); the same image as one process");
+  cmd->add_option("--replicate", f.replicate,
+                  "with --data-parallel: each rank also holds copies of the bricks around its part, up to this fraction of each "
+                  "volume (0 to 1, default 0), and asks other ranks only about rays that leave them (\"replicate\")");
   cmd->add_option("--ray-flow", f.rayFlow, "wavefront (default: paths in flight, rays traced in packets) or scalar (one ray at a time, the reference); the same image");
   cmd->add_option("--resolution", f.resolution, "image size WIDTHxHEIGHT");
   cmd->add_option("--threads", f.threads, "worker threads (0: all cores, at most 1024)")->check(CLI::Range(0, 1024));

@@ -52,21 +52,29 @@ class RankTracer {
  public:
   RankTracer(const World& world, tbb::task_arena& arena, int rank, int ranks)
       : m_world(world), m_arena(arena), m_rank(rank), m_ranks(ranks), m_cell(world.largestCell()),
-        m_lower(size_t(ranks)), m_upper(size_t(ranks)), m_selected(size_t(ranks)) {
-    // Every rank's volume box, on every rank.
-    Vec3d lo, hi;
-    world.volumeBounds(lo, hi);
-    double mine[6] = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};
-    std::vector<double> all(static_cast<size_t>(6 * ranks));
-    MPI_Allgather(mine, 6, MPI_DOUBLE, all.data(), 6, MPI_DOUBLE, MPI_COMM_WORLD);
-    // Padded for rounding (a ray's segment is tested in double against the box of bricks).
-    for (int r = 0; r < ranks; ++r) {
-      const double* b = &all[size_t(6 * r)];
-      for (int a = 0; a < 3; ++a) {
-        const double pad = 1e-6 * (std::fabs(b[a]) + std::fabs(b[3 + a]) + (b[3 + a] - b[a])) + 1e-9;
-        m_lower[size_t(r)][a] = b[a] - pad;
-        m_upper[size_t(r)][a] = b[3 + a] + pad;
-      }
+        m_selected(size_t(ranks)), m_ask(size_t(ranks)) {
+    // Every rank's boxes of each split volume (those with iso-surfaces), on every rank: the
+    // cells it answers for and the cells it holds.
+    std::vector<char> split(world.volumes().size(), 0);
+    for (const SurfaceInfo& s : world.surfaces()) split[size_t(s.volume)] = 1;
+    std::vector<const VolumeInfo*> volumes;
+    std::vector<int> mine;
+    for (size_t v = 0; v < split.size(); ++v) {
+      if (!split[v]) continue;
+      const VolumeInfo& vol = world.volumes()[v];
+      volumes.push_back(&vol);
+      for (const Vec3i& c : {vol.ownLo, vol.ownHi, vol.heldLo, vol.heldHi}) mine.insert(mine.end(), {c.x, c.y, c.z});
+    }
+    std::vector<int> all(mine.size() * size_t(ranks));
+    MPI_Allgather(mine.data(), int(mine.size()), MPI_INT, all.data(), int(mine.size()), MPI_INT, MPI_COMM_WORLD);
+    for (size_t k = 0; k < volumes.size(); ++k) {
+      std::vector<Vec3i> cells;  // by rank: own lo, hi, held lo, hi
+      for (int q = 0; q < ranks; ++q)
+        for (int c = 0; c < 4; ++c) {
+          const int* at = &all[size_t(q) * mine.size() + 12 * k + size_t(3 * c)];
+          cells.push_back({at[0], at[1], at[2]});
+        }
+      m_volumes.push_back(SplitVolume(*volumes[k], cells, rank));
     }
   }
 
@@ -93,12 +101,10 @@ class RankTracer {
         const float reach = float(2 * m_cell / double(length(ray.dir)));
         tfar = std::min(tfar, nextFloatUp(b.hits[i].t + reach) * (1 + 1e-6f));
       }
-      int whole = -1;  // (decided once a rank is asked about the ray)
-      for (int q = 0; q < m_ranks; ++q) {
-        if (q == m_rank || !reaches(ray, tfar, q)) continue;
-        if (whole < 0) whole = isShort(ray) ? 0 : 1;
-        m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole != 0});
-      }
+      if (!whomToAsk(ray, tfar, m_ask)) continue;
+      const bool whole = !isShort(ray);
+      for (int q = 0; q < m_ranks; ++q)
+        if (m_ask[size_t(q)]) m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole});
     }
     raysAsked += double(n);
     f.waiting = 0;
@@ -423,34 +429,44 @@ class RankTracer {
     --f.waiting;
   }
 
-  // Whether the segment of `r` up to `tfar` passes through rank q's volume box (padded for
-  // rounding), and where it enters it (`enters`, a parameter of `r`).
+  // Whether the segment of `r` up to `tfar` passes through rank q's own box of some volume
+  // (padded for rounding), and where it enters the first (`enters`, a parameter of `r`).
   bool reaches(const Ray& r, float tfar, int q, double* enters = nullptr) const {
-    const Vec3d lo = m_lower[size_t(q)], hi = m_upper[size_t(q)];
-    if (!(lo.x <= hi.x)) return false;
-    const Vec3d o = r.origin(), d(r.dir);
-    double t0 = r.tnear, t1 = tfar;
-    if (std::isfinite(t1)) {
-      // Most segments end near their start (a hit in this rank's part): a segment whose box lies
-      // beside rank q's on some axis does not reach it (~1/4 of the slab test's instructions).
-      for (int a = 0; a < 3; ++a) {
-        const double p0 = o[a] + t0 * d[a], p1 = o[a] + t1 * d[a];
-        if (std::max(p0, p1) < lo[a] || std::min(p0, p1) > hi[a]) return false;
+    bool any = false;
+    double first = INFINITY;
+    for (const SplitVolume& v : m_volumes) {
+      const Segment s = v.segment(r, tfar);
+      double t0 = s.t0, t1 = s.t1;
+      if (v.own[size_t(q)].clip(s, s.pad, t0, t1)) {
+        any = true;
+        first = std::min(first, t0);
       }
     }
-    for (int a = 0; a < 3; ++a) {
-      if (d[a] == 0) {
-        if (o[a] < lo[a] || o[a] > hi[a]) return false;
-        continue;
+    if (enters) *enters = first;
+    return any;
+  }
+
+  // The ranks that must be asked about the segment of `r` up to `tfar` (`ask`, by rank; whether
+  // any): those whose own box of some volume the segment passes through where this rank does not
+  // hold the bricks (its copies of their bricks, "replicate"). Most segments lie wholly in this
+  // rank's part of every volume (a ray from a hit here to the next hit here): one test each.
+  bool whomToAsk(const Ray& r, float tfar, std::vector<char>& ask) const {
+    std::fill(ask.begin(), ask.end(), 0);
+    bool any = false;
+    for (const SplitVolume& v : m_volumes) {
+      if (v.holdsAll) continue;
+      const Segment s = v.segment(r, tfar);
+      if (std::isfinite(s.t1) && v.heldHere.holds(s, s.t0, s.t1, s.pad)) continue;
+      for (int q = 0; q < m_ranks; ++q) {
+        if (q == m_rank || ask[size_t(q)]) continue;
+        double t0 = s.t0, t1 = s.t1;
+        if (!v.own[size_t(q)].clip(s, s.pad, t0, t1)) continue;
+        if (v.heldHere.holds(s, t0, t1, s.pad)) continue;  // its part there lies in the bricks held here
+        ask[size_t(q)] = 1;
+        any = true;
       }
-      const double inv = 1 / d[a];
-      double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
     }
-    if (enters) *enters = t0;
-    return t0 <= t1 * (1 + 1e-6) + 1e-9;
+    return any;
   }
 
   // answer(i, stats) for i in [0, n), on this rank's threads.
@@ -470,7 +486,106 @@ class RankTracer {
   tbb::task_arena& m_arena;
   int m_rank, m_ranks;
   double m_cell;  // World::largestCell
-  std::vector<Vec3d> m_lower, m_upper;
+  // A ray's segment [t0, t1] in a volume's query space (below), and how far rounding may move its
+  // points there.
+  struct Segment {
+    Vec3d o, d;
+    double t0, t1, pad;
+    Vec3d at(double t) const { return o + d * t; }
+  };
+  // A box of a volume's query space, [lo, hi] on each axis.
+  struct Box {
+    Vec3d lo, hi;
+    // Narrows [t0, t1] to the part of segment `s` inside the box grown by `pad`; whether any is left.
+    bool clip(const Segment& s, double pad, double& t0, double& t1) const {
+      for (int a = 0; a < 3; ++a) {
+        const double lo_ = lo[a] - pad, hi_ = hi[a] + pad;
+        if (s.d[a] == 0) {
+          if (s.o[a] < lo_ || s.o[a] > hi_) return false;
+          continue;
+        }
+        const double inv = 1 / s.d[a];
+        double ta = (lo_ - s.o[a]) * inv, tb = (hi_ - s.o[a]) * inv;
+        if (ta > tb) std::swap(ta, tb);
+        t0 = std::max(t0, ta);
+        t1 = std::min(t1, tb);
+      }
+      return t0 <= t1;
+    }
+    // Whether point p lies in the box shrunk by `pad`.
+    bool holds(const Vec3d& p, double pad) const {
+      return p.x >= lo.x + pad && p.y >= lo.y + pad && p.z >= lo.z + pad && p.x <= hi.x - pad && p.y <= hi.y - pad &&
+             p.z <= hi.z - pad;
+    }
+    // Whether the part [t0, t1] (finite) of segment s lies in the box shrunk by `pad` (a box is convex).
+    bool holds(const Segment& s, double t0, double t1, double pad) const { return holds(s.at(t0), pad) && holds(s.at(t1), pad); }
+  };
+  // A volume split over the ranks, its boxes in its *query space*: world space when the volume's
+  // grid axes are the world's (scaled, mirrored, moved: most volumes), so a ray needs no
+  // transform; its grid's index space otherwise (a ray's parameter is the same in both).
+  struct SplitVolume {
+    bool world = false;  // query space is world space (else: index space, through toIndex)
+    Transform toIndex;
+    double stretch = 1;  // query units per world unit (the largest row sum of the transform)
+    double cell = 1;     // a cell's smallest side in query units
+    double scale = 0;    // the largest world coordinate of the grid's box
+    std::vector<Box> own;  // by rank: the cells it answers for
+    // This rank's held box (its own and its copies of its neighbours' bricks), unbounded on the
+    // sides where it holds the volume to its end (nothing lies beyond), and whether that is
+    // everywhere: then it asks nobody about this volume.
+    Box heldHere;
+    bool holdsAll = false;
+
+    // `cells`: by rank, the own box's cells [lo, hi) and the held box's.
+    SplitVolume(const VolumeInfo& vol, const std::vector<Vec3i>& cells, int rank) {
+      const Grid& g = *vol.grid;
+      const Vec3d inv{1 / g.spacing().x, 1 / g.spacing().y, 1 / g.spacing().z};
+      toIndex = Transform::scale(inv) * Transform::translate(-g.origin()) * vol.toObject;
+      world = true;
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) world = world && (i == j || toIndex.m[i][j] == 0);
+      const Transform toWorld = toIndex.inverse();
+      for (const Vec3d& c : gridBoxCorners(vol)) scale = std::max({scale, std::fabs(c.x), std::fabs(c.y), std::fabs(c.z)});
+      if (world) {
+        cell = INFINITY;
+        for (int a = 0; a < 3; ++a) cell = std::min(cell, 1 / std::fabs(toIndex.m[a][a]));
+      } else {
+        const Vec3d rows = toIndex.absRowSums();
+        stretch = std::max({rows.x, rows.y, rows.z});
+      }
+      // A box of cells [lo, hi) in query space; `open`: sides at the grid's ends unbounded.
+      const Vec3i last = g.dims() - Vec3i{1, 1, 1};
+      auto box = [&](Vec3i lo, Vec3i hi, bool open) {
+        Vec3d l(lo), h(hi);
+        for (int a = 0; a < 3; ++a) {
+          if (open && lo[a] <= 0) l[a] = -1e300;
+          if (open && hi[a] >= last[a]) h[a] = 1e300;
+        }
+        if (!world) return Box{l, h};
+        const Vec3d p = toWorld.point(l), q = toWorld.point(h);
+        return Box{min(p, q), max(p, q)};
+      };
+      for (size_t q = 0; q < cells.size() / 4; ++q) own.push_back(box(cells[4 * q], cells[4 * q + 1], false));
+      const Vec3i heldLo = cells[size_t(4 * rank + 2)], heldHi = cells[size_t(4 * rank + 3)];
+      heldHere = box(heldLo, heldHi, true);
+      holdsAll = heldLo == Vec3i{0, 0, 0} && heldHi == last;
+    }
+
+    Segment segment(const Ray& r, float tfar) const {
+      const Vec3d org = r.origin();
+      const double reach = std::max({std::fabs(org.x), std::fabs(org.y), std::fabs(org.z)});
+      Segment s;
+      s.o = world ? org : toIndex.point(org);
+      s.d = world ? Vec3d(r.dir) : toIndex.vector(Vec3d(r.dir));
+      s.t0 = r.tnear;
+      s.t1 = tfar;
+      // A float ray's points are rounded by ~2^-24 of the world coordinates on their way (origin,
+      // direction times t, the walk's own grid ray): 1e-5 of them is ~170 times that.
+      s.pad = 1e-5 * (2 * reach + scale) * stretch + 1e-4 * cell;
+      return s;
+    }
+  };
+  std::vector<SplitVolume> m_volumes;
   // A ray of a stage asked of a rank: its index in the flight, the end the rank is asked to look
   // to, and whether it goes whole (AskedWhole) or as an AskedShort.
   struct Selected {
@@ -479,6 +594,7 @@ class RankTracer {
     bool whole;
   };
   std::vector<std::vector<Selected>> m_selected;  // by rank: the rays of the stage being asked
+  std::vector<char> m_ask;                         // by rank: whether a ray is asked of it (whomToAsk)
   std::vector<char> m_inbox;               // the message being read (an ask or an answer)
   // An ask's rays as this rank traces them, their indices in the asker's flight, what they found.
   std::vector<Ray> m_rays;

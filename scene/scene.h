@@ -168,6 +168,10 @@ struct RenderSettings {
   // "distribution": "data" (--data-parallel): under MPI each rank holds only its part of each
   // volume (renderer/distributed.h); "image" (the default): every rank holds the whole scene.
   bool dataParallel = false;
+  // "replicate" (--replicate): in a data-parallel render, the fraction of each volume's bricks a
+  // rank may hold beyond its own box, as copies of its neighbours' bricks next to it (0 to 1;
+  // volume/partition.h heldBox). More memory per rank, fewer rays asked of other ranks.
+  double replicate = 0;
 };
 
 // The part of the scene's volumes this process holds in a data-parallel render: each volume with

@@ -669,7 +669,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
   }
   if (const Json* j = r.get("integrator")) {
     ObjectReader in(*j, "/integrator", path,
-                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold", "ray_flow", "distribution"});
+                    {"type", "spp", "max_depth", "ao_distance", "seed", "clamp", "noise_threshold", "ray_flow", "distribution", "replicate"});
     scene.settings.integrator = in.string("type", scene.settings.integrator);
     if (!isKnownIntegrator(scene.settings.integrator))
       in.fail("/integrator/type", "unknown integrator '" + scene.settings.integrator +
@@ -687,6 +687,7 @@ SceneDesc parseSceneJson(const Json& root, const std::string& path, const SceneA
     if (distribution != "data" && distribution != "image")
       in.fail("/integrator/distribution", "unknown distribution '" + distribution + "' (known: image, data)");
     scene.settings.dataParallel = distribution == "data";
+    scene.settings.replicate = in.number("replicate", scene.settings.replicate, 0, 1);
     in.finish();
   }
   if (const Json* j = r.get("intersector")) {

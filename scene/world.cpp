@@ -147,22 +147,6 @@ World::World(const SceneDesc& scene, const IntersectorSpec& intersector, const W
   }
 }
 
-void World::volumeBounds(Vec3d& lower, Vec3d& upper) const {
-  lower = {INFINITY, INFINITY, INFINITY};
-  upper = -lower;
-  for (const SurfaceInfo& s : m_surfaces) {
-    const VolumeInfo& vol = m_volumes[size_t(s.volume)];
-    const Grid& g = *vol.grid;
-    const Vec3i first = g.windowFirst(), last = first + g.windowExtent() - Vec3i{1, 1, 1};
-    for (int c = 0; c < 8; ++c) {
-      const Vec3d corner{double(c & 1 ? last.x : first.x), double(c & 2 ? last.y : first.y), double(c & 4 ? last.z : first.z)};
-      const Vec3d p = vol.transform.point(g.origin() + corner * g.spacing());
-      lower = min(lower, p);
-      upper = max(upper, p);
-    }
-  }
-}
-
 double World::largestCell() const {
   double largest = 0;
   for (const SurfaceInfo& s : m_surfaces) {
@@ -482,13 +466,19 @@ void checkDataParallel(const SceneDesc& scene) {
 
 namespace {
 // This rank's box of volume v (SceneDesc::dataPart) from the ranges of its bricks: boxes of
-// whole bricks balanced by the bricks active for the volume's iso values, the same on every rank.
-RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
+// whole bricks balanced by the bricks active for the volume's iso values, the same on every rank;
+// and the box it holds, with the copies of its neighbours' bricks "replicate" allows.
+struct RankPart {
+  RankBox own, held;
+};
+RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
   const VolumeDesc& desc = scene.volumes[v];
   std::vector<double> weights(bricks.size(), 0.0);
   for (const IsoSurfaceDesc& iso : desc.isosurfaces)
     for (uint32_t b : bricks.activeBricks(float(iso.value))) weights[b] = 1;
-  return partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where)[size_t(scene.dataPart.rank)];
+  const RankBox own =
+      partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where)[size_t(scene.dataPart.rank)];
+  return {own, heldBox(own, bricks, scene.settings.replicate)};
 }
 
 // This rank's window of volume v. A procedural field is evaluated twice, once for its bricks'
@@ -496,13 +486,14 @@ RankBox rankBox(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
 // NRRD, MetaImage, binary VTK, NIfTI, DICOM: fileBrickRanges) is read twice, for the ranges and for the window: the rank
 // never holds more than its window (and a compressed file's compressed bytes). Other files are
 // read whole and the window cut from them (docs/distributed.md).
-VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
+// (`part`: the boxes it answers for and holds.)
+VolumeFile loadRankVolume(const SceneDesc& scene, size_t v, RankPart& part) {
   const VolumeDesc& desc = scene.volumes[v];
   VolumeFile f;
   if (desc.field && !desc.array) {
     const Vec3i n = desc.resolution;
-    const RankBox box = rankBox(scene, v, proceduralBrickRanges(*desc.field, n));
-    f.grid = makeProceduralWindow(*desc.field, n, box.windowFirst(), box.windowExtent(n));
+    part = rankPart(scene, v, proceduralBrickRanges(*desc.field, n));
+    f.grid = makeProceduralWindow(*desc.field, n, part.held.windowFirst(), part.held.windowExtent(n));
     f.format = "procedural";
     placeVolume(desc, f);
     return f;
@@ -511,8 +502,8 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
     // Its bricks' ranges first (the files read or inflated in order, a layer at a time), then
     // only the window's samples.
     if (const std::optional<BrickGrid> ranges = fileBrickRanges(desc.file, desc.layout, desc.part)) {
-      const RankBox box = rankBox(scene, v, *ranges);
-      const SampleWindow window{box.windowFirst(), box.windowExtent(ranges->dims())};
+      part = rankPart(scene, v, *ranges);
+      const SampleWindow window{part.held.windowFirst(), part.held.windowExtent(ranges->dims())};
       f = readVolumeFile(desc.file, desc.layout, desc.part, &window);
       placeVolume(desc, f);
       return f;
@@ -521,8 +512,8 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v) {
   f = loadVolume(desc);
   if (f.grid.sparse())
     throw InputError(scene.path, desc.where, "a sparse (OpenVDB) volume cannot be split over ranks yet (\"distribution\": \"data\")");
-  const RankBox box = rankBox(scene, v, BrickGrid(f.grid));
-  f.grid = windowOf(f.grid, box.windowFirst(), box.windowExtent(f.grid.dims()));
+  part = rankPart(scene, v, BrickGrid(f.grid));
+  f.grid = windowOf(f.grid, part.held.windowFirst(), part.held.windowExtent(f.grid.dims()));
   return f;
 }
 }  // namespace
@@ -540,9 +531,16 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
     } else {
       info.name = desc.array ? "array" : desc.field ? "procedural" : desc.file;
       info.source = source;
-      VolumeFile file = scene.dataPart.ranks > 1 && !desc.isosurfaces.empty() ? loadRankVolume(scene, v)
-                        : load                                             ? load(v, desc)
-                                                                           : loadVolume(desc);
+      const bool split = scene.dataPart.ranks > 1 && !desc.isosurfaces.empty();
+      RankPart part;
+      VolumeFile file = split ? loadRankVolume(scene, v, part) : load ? load(v, desc) : loadVolume(desc);
+      if (split) {
+        info.ownLo = part.own.cellLo, info.ownHi = part.own.cellHi;
+        info.heldLo = part.held.cellLo, info.heldHi = part.held.cellHi;
+      } else {
+        info.ownLo = info.heldLo = {0, 0, 0};
+        info.ownHi = info.heldHi = file.grid.dims() - Vec3i{1, 1, 1};
+      }
       info.grid = std::make_shared<const Grid>(std::move(file.grid));
       info.transform = file.toWorld;
       info.toObject = info.transform.inverse();

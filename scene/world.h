@@ -91,6 +91,11 @@ struct VolumeInfo {
   std::string format;              // the file's format ("procedural" for a built-in field)
   std::vector<std::string> notes;  // what the file said about itself (VolumeFile::notes)
   std::string source;              // what was loaded (volumeSourceKey): a later World reuses it when equal
+  // The cells [ownLo, ownHi) of the rank's own box of a volume split over data-parallel ranks
+  // (volume/partition.h), the part of the volume it answers for, and [heldLo, heldHi), the cells
+  // it holds ("replicate": its box and copies of its neighbours' bricks around it). The whole
+  // grid's cells when the volume is not split.
+  Vec3i ownLo, ownHi, heldLo, heldHi;
 };
 
 // How a World gets a volume's samples: nothing (loadVolume reads it), or a function that may hand
@@ -127,9 +132,6 @@ class World {
 
   // Geometry masks (Ray::mask): triangle meshes (and their instances), and the rest: iso-surfaces.
   static constexpr unsigned kMeshMask = 1u, kVolumeMask = ~1u;
-  // The world-space box around the samples this World holds of the volumes with iso-surfaces (a
-  // data-parallel rank's windows: every hit on its iso-surfaces lies in it); none: lower > upper.
-  void volumeBounds(Vec3d& lower, Vec3d& upper) const;
   // An upper bound on the world-space length of any cell's diagonal of those volumes (0: none).
   double largestCell() const;
   bool intersect(const Ray& ray, Hit& hit, TraversalStats& stats) const;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -519,6 +520,47 @@ TEST(DataParallel, DistributionKey) {
       EXPECT_NE(std::string(e.what()).find("s.json: /integrator/distribution"), std::string::npos) << e.what();
     }
   }
+}
+
+// "replicate": a fraction in [0, 1]; anything else is refused naming the key, and so is a
+// fraction given for a render that is not data-parallel (the flag, or the key) - in one line,
+// status 2, no image.
+TEST(DataParallel, ReplicateKeyAndFlag) {
+  EXPECT_EQ(parseSceneText(R"({"integrator": {"distribution": "data"}})", "s.json").settings.replicate, 0);
+  EXPECT_EQ(parseSceneText(R"({"integrator": {"distribution": "data", "replicate": 0.25}})", "s.json").settings.replicate, 0.25);
+  for (const char* bad : {R"({"integrator": {"replicate": -0.1}})", R"({"integrator": {"replicate": 1.5}})",
+                          R"({"integrator": {"replicate": "all"}})", R"({"integrator": {"replicate": null}})"}) {
+    try {
+      parseSceneText(bad, "s.json");
+      ADD_FAILURE() << bad;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("s.json: /integrator/replicate"), std::string::npos) << e.what();
+    }
+  }
+  const std::string dir = test::scratchDir();
+  const std::string volume = test::dataPath("volumes/neghip_64x64x64_uint8.raw");
+  const std::string scene = R"({"film": {"width": 16, "height": 12}, "integrator": {"spp": 1},
+    "volumes": [{"file": ")" + volume + R"(", "isosurfaces": [{"value": 40}]}]})";
+  test::writeText(dir + "/s.json", scene);
+  test::writeText(dir + "/image.json", scene.substr(0, scene.find(R"("spp": 1})")) + R"("spp": 1, "replicate": 0.5},)" +
+                                           scene.substr(scene.find(R"("spp": 1})") + 10));
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"render " + dir + "/s.json --data-parallel --replicate 1.5", "--replicate"},
+      {"render " + dir + "/s.json --data-parallel --replicate -1", "--replicate"},
+      {"render " + dir + "/s.json --data-parallel --replicate nan", "--replicate"},
+      {"render " + dir + "/s.json --replicate 0.5", "--replicate: copies of other ranks' bricks are for data-parallel"},
+      {"render " + dir + "/image.json", "image.json: /integrator/replicate: copies of other ranks' bricks"}};
+  for (const auto& [args, what] : cases) {
+    SCOPED_TRACE(args);
+    const auto r = test::runIsotrace(args + " -o " + dir + "/out.png");
+    EXPECT_EQ(r.status, 2) << r.err;
+    EXPECT_NE(r.err.find(what), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    EXPECT_FALSE(std::filesystem::exists(dir + "/out.png"));
+  }
+  // Alone (no launcher) a data-parallel render with copies is the single-process render.
+  const auto one = test::runIsotrace("render " + dir + "/s.json --data-parallel --replicate 0.5 --quiet -o " + dir + "/one.png");
+  EXPECT_EQ(one.status, 0) << one.err;
 }
 
 TEST(DataParallel, WindowsOutsideTheVolumeAreRefusedNamingTheFile) {

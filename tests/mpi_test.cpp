@@ -233,14 +233,16 @@ TEST(Mpi, ARankThatFailsEndsTheRun) {
 // ranks and threads. Scenes where paths cross the rank seams many times: a CT with a glass skin
 // around bone (two iso values, path tracing), a field whose seams run through the surface,
 // glTF meshes with two volumes, and a sparse OpenVDB grid beside an oblique NIfTI volume.
-TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
-  const std::string dir = test::scratchDir();
+// Scenes for data-parallel rendering, by name: a CT with a glass skin, a procedural field, glTF
+// meshes with two volumes (moved and scaled), and formats split by their own readers (a sparse
+// OpenVDB grid, an oblique NIfTI placed by an instance).
+std::map<std::string, std::string> dataParallelScenes() {
   const std::string data = test::dataPath("");
   const std::string materials = R"("materials": {"glass": {"type": "dielectric", "ior": 1.3, "color": [0.95, 0.85, 0.8]},
       "bone": {"type": "diffuse", "color": [0.9, 0.85, 0.7]}, "red": {"type": "metallic_roughness", "color": [0.8, 0.3, 0.2], "roughness": 0.3},
       "floor": {"type": "diffuse", "color": 0.6}},
     "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5}, {"type": "environment", "radiance": [0.35, 0.4, 0.5]}])";
-  const std::map<std::string, std::string> scenes = {
+  return {
       {"ct", R"({"film": {"width": 40, "height": 30}, "integrator": {"type": "path", "spp": 6, "max_depth": 6},
         "volumes": [{"file": ")" + data + R"(volumes/lidc2_chest_ct_256x256x133_uint8.raw.gz", "spacing": [1.40625, 1.40625, 2.5],
           "isosurfaces": [{"value": 50, "material": "glass"}, {"value": 150, "material": "bone"}]}], )" + materials + "}"},
@@ -260,6 +262,11 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
                      "isosurfaces": [{"value": 0.2, "material": "glass"}]},
                     {"file": ")" + data + R"(volumes/example4d.nii.gz", "isosurfaces": [{"value": 300, "material": "red"}]}], )" +
                       materials + "}"}};
+}
+
+TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
+  const std::string dir = test::scratchDir();
+  const std::map<std::string, std::string> scenes = dataParallelScenes();
   for (const auto& [name, text] : scenes) {
     SCOPED_TRACE(name);
     test::writeText(dir + "/" + name + ".json", text);
@@ -310,6 +317,42 @@ TEST(Mpi, DataParallelRendersTheSingleProcessImageBitForBit) {
       const std::vector<float> one = readExr(base + "_one" + part + ".exr");
       ASSERT_FALSE(one.empty()) << base + "_one" + part + ".exr";
       EXPECT_EQ(readExr(base + "_two" + part + ".exr"), one) << integrator << part;
+    }
+  }
+}
+
+// Ranks that hold copies of their neighbours' bricks ("replicate") ask each other about fewer
+// rays and render the same image: volumes whose grid axes are the world's (tested in world space)
+// and an oblique one (in its grid's index space), on 2 and 3 ranks; holding everything, no rank
+// asks another anything. (ISOTRACE_TEST_REDEAL=rotate makes the tiles' ranks, and so the rays
+// sent, the same from run to run.)
+TEST(Mpi, RanksHoldingCopiesOfBricksAskLessForTheSameImage) {
+  const std::string dir = test::scratchDir();
+  const std::map<std::string, std::string> scenes = dataParallelScenes();
+  for (const std::string name : {"ct", "mixed", "formats"}) {
+    SCOPED_TRACE(name);
+    const std::string base = dir + "/" + name;
+    test::writeText(base + ".json", scenes.at(name));
+    const auto one = runIsotrace("render " + base + ".json --threads 2 --quiet -o " + base + "_one.exr");
+    ASSERT_EQ(one.status, 0) << one.err;
+    const std::vector<float> reference = readExr(base + "_one.exr");
+    ASSERT_FALSE(reference.empty());
+    for (const int ranks : {2, 3}) {
+      std::map<std::string, double> sent;
+      for (const std::string replicate : {"0", "0.3", "1"}) {
+        const std::string out = base + "_" + std::to_string(ranks) + "_" + replicate;
+        const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_REDEAL=rotate " + ISOTRACE_BINARY + " render " + base +
+                                  ".json --data-parallel --replicate " + replicate + " --threads 1 --quiet -o " + out +
+                                  ".exr --stats " + out + ".json");
+        ASSERT_EQ(r.status, 0) << r.err;
+        EXPECT_EQ(readExr(out + ".exr"), reference) << ranks << " ranks, replicate " << replicate;
+        const nlohmann::json stats = readJson(out + ".json");
+        ASSERT_EQ(stats["rays_sent_per_rank"].size(), size_t(ranks)) << stats.dump();
+        for (const auto& n : stats["rays_sent_per_rank"]) sent[replicate] += n.get<double>();
+      }
+      EXPECT_GT(sent["0"], 0);
+      EXPECT_LT(sent["0.3"], sent["0"]) << ranks << " ranks";
+      EXPECT_EQ(sent["1"], 0) << ranks << " ranks";
     }
   }
 }

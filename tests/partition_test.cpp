@@ -60,6 +60,62 @@ TEST(Partition, BoxesCoverEveryBrickOnceAndBalanceTheActiveOnes) {
   EXPECT_EQ(touching, 1);
 }
 
+// "replicate": a rank's held box is its own grown by whole layers of bricks (clamped to the
+// volume) while the extra bricks stay within the fraction; 0 holds the box alone, 1 the volume.
+TEST(Partition, HeldBoxesGrowByLayersWithinTheFraction) {
+  const Grid grid = readVolumeFile(test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw"), {}, {}).grid;  // 16^3 bricks
+  const BrickGrid bricks(grid);
+  const std::vector<double> none(bricks.size(), 0.0);
+  for (int ranks : {2, 3, 5}) {
+    SCOPED_TRACE("ranks " + std::to_string(ranks));
+    for (const RankBox& own : partitionBricks(bricks, none, ranks, "hydrogen")) {
+      const RankBox zero = heldBox(own, bricks, 0);
+      EXPECT_EQ(zero.brickLo, own.brickLo);
+      EXPECT_EQ(zero.brickHi, own.brickHi);
+      const RankBox all = heldBox(own, bricks, 1);
+      EXPECT_EQ(all.brickLo, (Vec3i{0, 0, 0}));
+      EXPECT_EQ(all.brickHi, bricks.count());
+      EXPECT_EQ(all.cellLo, (Vec3i{0, 0, 0}));
+      EXPECT_EQ(all.cellHi, (grid.dims() - Vec3i{1, 1, 1}));
+      size_t before = own.bricks;
+      for (double f : {0.02, 0.1, 0.25, 0.5}) {
+        const RankBox held = heldBox(own, bricks, f);
+        size_t count = 1;
+        int layers = -1;
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_LE(held.brickLo[a], own.brickLo[a]);
+          EXPECT_GE(held.brickHi[a], own.brickHi[a]);
+          count *= size_t(held.brickHi[a] - held.brickLo[a]);
+          // The same number of layers on every side the volume does not end.
+          for (int side : {own.brickLo[a] - held.brickLo[a], held.brickHi[a] - own.brickHi[a]})
+            if ((side > 0) && layers < 0) layers = side;
+          if (held.brickLo[a] > 0) {
+            EXPECT_EQ(own.brickLo[a] - held.brickLo[a], std::max(layers, 0));
+          }
+          if (held.brickHi[a] < bricks.count()[a]) {
+            EXPECT_EQ(held.brickHi[a] - own.brickHi[a], std::max(layers, 0));
+          }
+        }
+        EXPECT_EQ(held.bricks, count);
+        EXPECT_LE(double(count - own.bricks), f * double(bricks.size()) + 1e-9) << f;
+        EXPECT_GE(count, before) << "more of the volume for a larger fraction";
+        before = count;
+        // One more layer would pass the fraction (or the box is the volume already).
+        if (!(held.brickLo == Vec3i{0, 0, 0}) || !(held.brickHi == bricks.count())) {
+          size_t more = 1;
+          const int next = std::max(layers, 0) + 1;
+          for (int a = 0; a < 3; ++a)
+            more *= size_t(std::min(own.brickHi[a] + next, bricks.count()[a]) - std::max(own.brickLo[a] - next, 0));
+          EXPECT_GT(double(more - own.bricks), f * double(bricks.size())) << f;
+        }
+        // Its window holds the samples of every cell it holds.
+        EXPECT_EQ(held.cellLo, bricks.cellBegin(uint32_t((size_t(held.brickLo.z) * bricks.count().y + size_t(held.brickLo.y)) *
+                                                             bricks.count().x + size_t(held.brickLo.x))));
+      }
+    }
+  }
+}
+
 TEST(Partition, MoreRanksThanBricksIsRefused) {
   const Grid grid = readVolumeFile(test::dataPath("volumes/bucky_32x32x32_uint8.raw"), {}, {}).grid;  // 4^3 bricks
   const BrickGrid bricks(grid);

@@ -90,6 +90,35 @@ std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<
   return s.out;
 }
 
+RankBox heldBox(const RankBox& own, const BrickGrid& bricks, double replicate) {
+  const Vec3i n = bricks.count();
+  const double budget = replicate * double(bricks.size());
+  auto grown = [&](int layers) {
+    RankBox b = own;
+    b.bricks = 1;
+    for (int a = 0; a < 3; ++a) {
+      b.brickLo[a] = std::max(own.brickLo[a] - layers, 0);
+      b.brickHi[a] = std::min(own.brickHi[a] + layers, n[a]);
+      b.bricks *= size_t(b.brickHi[a] - b.brickLo[a]);
+    }
+    return b;
+  };
+  int layers = 0;
+  for (const int most = std::max({n.x, n.y, n.z}); layers < most;) {
+    const RankBox next = grown(layers + 1);
+    if (double(next.bricks - own.bricks) > budget) break;
+    ++layers;
+  }
+  if (layers == 0) return own;
+  RankBox held = grown(layers);
+  held.cellLo = bricks.cellBegin(uint32_t((size_t(held.brickLo.z) * size_t(n.y) + size_t(held.brickLo.y)) * size_t(n.x) +
+                                         size_t(held.brickLo.x)));
+  held.cellHi = bricks.cellEnd(uint32_t((size_t(held.brickHi.z - 1) * size_t(n.y) + size_t(held.brickHi.y - 1)) * size_t(n.x) +
+                                        size_t(held.brickHi.x - 1)));
+  held.weight = 0;  // (not summed: the weights are the own box's business)
+  return held;
+}
+
 Vec3i RankBox::windowFirst() const {
   return {std::max(cellLo.x - 1, 0), std::max(cellLo.y - 1, 0), std::max(cellLo.z - 1, 0)};
 }

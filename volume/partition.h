@@ -34,4 +34,11 @@ struct RankBox {
 std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<double>& weights, int ranks,
                                      const std::string& where);
 
+// What a rank holds of the volume when it may also hold copies of other ranks' bricks ("replicate":
+// a fraction of the volume's bricks, 0 to 1): its box grown by the most layers of bricks on every
+// side (clamped to the volume) whose bricks beyond its own number at most `replicate` of all. Rays
+// whose way through another rank's box lies inside these copies need not be asked of that rank.
+// 0: the box itself; 1: the whole volume.
+RankBox heldBox(const RankBox& own, const BrickGrid& bricks, double replicate);
+
 }  // namespace iso
