@@ -160,8 +160,10 @@ class RankTracer {
   }
 
   // Waits for, and answers, the other ranks until every rank has finished its flights of the pass
-  // (this one's are: no flight is waiting). Collective.
-  void finishPass(std::vector<Flight*>& flights, TraversalStats& stats) {
+  // (this one's are: no flight is waiting). `between()` runs between looks (the driver's other
+  // messages; whether anything came). Collective.
+  template <typename Between>
+  void finishPass(std::vector<Flight*>& flights, TraversalStats& stats, Between&& between) {
     MPI_Request done;
     MPI_Ibarrier(MPI_COMM_WORLD, &done);
     for (;;) {
@@ -172,7 +174,8 @@ class RankTracer {
         waitSeconds += since(t0);
         return;
       }
-      if (!serve(flights, stats)) waited(t0);
+      const bool served = serve(flights, stats);
+      if (!between() && !served) waited(t0);
     }
   }
 
@@ -231,6 +234,7 @@ class RankTracer {
         owner[size_t(t)] = q;
         ++count[size_t(q)];
       }
+    if (dealAllToFirstForTest()) std::fill(owner.begin(), owner.end(), 0);
     return {owner, first};
   }
 
@@ -609,7 +613,6 @@ class RankTracer {
 // the answers to its flight's rays), or idle (the slot has no more rounds in the pass).
 struct Round {
   enum Step { kStart, kWait, kIdle } step = kIdle;
-  size_t index = 0;       // of the round in the pass: slot k takes rounds k, k + kSlots, ...
   size_t p0 = 0, p1 = 0;  // its pixels, of this rank's
   double seconds = 0;     // spent on its steps so far (this rank's own work: not the answers)
   Wave wave;
@@ -665,9 +668,30 @@ struct RankTiles {
       if (after[size_t(tile)] != rank) blocks[size_t(tile)].reset();
   }
 
-  // The lists, from the blocks this rank holds: the tiles in tile order, or the costliest first
-  // (`cost` by tile index, when known).
-  void list(const TileRenderer& renderer, const std::vector<double>& cost = {}) {
+  // The pixel lists cut to their first n (the tiles list stays).
+  void truncate(size_t n) {
+    pixels.resize(n);
+    tileOf.resize(n);
+    sums.resize(n);
+  }
+
+  // A tile this rank took (its block already here), its pixels added at the end of the lists.
+  void append(const TileRenderer& renderer, int tile) {
+    tiles.push_back(tile);
+    PixelSums* block = blocks[size_t(tile)].get();
+    forEachPixelInPacketOrder(renderer.rect(tile), [&](int x, int y) {
+      pixels.emplace_back(x, y);
+      tileOf.push_back(tile);
+      sums.push_back(block++);
+    });
+  }
+
+  // The lists, from the blocks this rank holds: the tiles in tile order, or, when `cost` is known
+  // (by tile index), the tiles whose rays enter this rank's box first (`first`, by tile index)
+  // before the others, each kind the costliest first. A pass thus ends on the cheapest tiles,
+  // and the tiles given away during it (from the end) are those another rank renders as well.
+  void list(const TileRenderer& renderer, const std::vector<double>& cost = {}, const std::vector<int>& first = {},
+            int rank = -1) {
     tiles.clear();
     pixels.clear();
     tileOf.clear();
@@ -675,20 +699,19 @@ struct RankTiles {
     for (int tile = 0; tile < renderer.tiles(); ++tile)
       if (blocks[size_t(tile)]) tiles.push_back(tile);
     if (!cost.empty())
-      std::stable_sort(tiles.begin(), tiles.end(), [&](int a, int b) { return cost[size_t(a)] > cost[size_t(b)]; });
-    for (int tile : tiles) {
-      PixelSums* block = blocks[size_t(tile)].get();
-      forEachPixelInPacketOrder(renderer.rect(tile), [&](int x, int y) {
-        pixels.emplace_back(x, y);
-        tileOf.push_back(tile);
-        sums.push_back(block++);
+      std::stable_sort(tiles.begin(), tiles.end(), [&](int a, int b) {
+        const bool ha = !first.empty() && first[size_t(a)] == rank, hb = !first.empty() && first[size_t(b)] == rank;
+        return ha != hb ? ha : cost[size_t(a)] > cost[size_t(b)];
       });
-    }
+    const std::vector<int> order = std::move(tiles);
+    tiles.clear();
+    for (int tile : order) append(renderer, tile);
   }
 };
 
 // The test hook ISOTRACE_TEST_REDEAL=rotate: every tile goes to the next rank after every pass
-// (tests/mpi_test.cpp: the image stays the same bits however often the tiles move).
+// and none moves during one (tests/mpi_test.cpp: the image stays the same bits however often
+// the tiles move; what is asked of whom is the same from run to run).
 bool rotateTilesForTest() {
   const char* v = std::getenv("ISOTRACE_TEST_REDEAL");
   return v && std::string(v) == "rotate";
@@ -776,6 +799,9 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   // "Data-parallel rendering" and "Scale-out (issue 47, third session)".)
   constexpr int kSlots = 8;
   constexpr int kPathsPerRound = 2048;
+  // A rank with no round left to start asks for tiles once this few of its rounds are in flight
+  // (asked earlier, it takes work it would have had time for: tiles go back and forth).
+  constexpr size_t kAskWhenInFlight = 2;
   std::vector<Round> slots(kSlots);
   std::vector<Flight*> flights;
   for (Round& round : slots) flights.push_back(&round.flight);
@@ -783,23 +809,149 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
   // What this rank's own work on each of its tiles cost in the pass (the seconds of its rounds'
   // steps, shared among their pixels), for dealing the tiles again before the next.
   std::vector<double> tileSeconds(size_t(n), 0.0);
+  // (ISOTRACE_TEST_REDEAL=rotate moves every tile after every pass and nothing during one, so
+  // that where each tile is, and what is asked of whom, is the same from run to run.)
+  const bool rotate = rotateTilesForTest();
+  // Tiles handed during a pass to a rank that ran out of rounds to start (give, below): this
+  // rank's messages of them, sent without blocking.
+  Outbox handOut;
   int s0 = 0;
   for (int pass = 0; s0 < options.spp; ++pass) {
     const int s1 = TileRenderer::nextPassStart(s0, pass, options.spp), ns = s1 - s0;
     const size_t maxPixels = std::max<size_t>(1, size_t(kPathsPerRound) / size_t(ns));
-    const size_t rounds = (mine.pixels.size() + maxPixels - 1) / maxPixels;
+    // The pass's rounds (runs of this rank's pixels), started in order by whichever slot is free.
+    std::vector<std::pair<size_t, size_t>> rounds;
+    size_t nextRound = 0;
+    auto addRounds = [&](size_t from, size_t to) {
+      for (size_t p = from; p < to; p += maxPixels) rounds.emplace_back(p, std::min(to, p + maxPixels));
+    };
+    addRounds(0, mine.pixels.size());
     const auto passStart = Clock::now();
     const double waitedBefore = tracer.waitSeconds;
-    for (int k = 0; k < kSlots; ++k) {
-      slots[size_t(k)].step = Round::kStart;
-      slots[size_t(k)].index = size_t(k);
-    }
+    for (Round& round : slots) round.step = Round::kStart;
+    bool moved = false;  // tiles came or went during the pass
+    const std::vector<int> dealt = owner;  // the tiles' ranks as the pass began
+
+    // Taking and giving tiles during the pass, so that the ranks end it together whatever their
+    // speed: a rank with no round left to start asks the other ranks in turn (kTakeTiles) until one
+    // gives it tiles or all have none; a rank asked gives whole tiles from the end of its rounds
+    // not yet started, at most half of their pixels, with their sums (kGivenTiles), and renders
+    // only the rest. A tile's sums go with it, its samples of the pass are all taken on one rank,
+    // so the image keeps its bits. (Which tiles move depends on the machine's speed; the owners
+    // are agreed again at the pass's end.)
+    int asking = -1;                         // the rank asked, until it answers
+    int refusals = 0;                        // ranks that answered "none" since tiles last came
+    int victim = (rank + 1) % ranks;         // the next rank to ask
+    bool exhausted = ranks < 2 || rotate;    // every other rank has answered "none" (or the rotate hook: no taking)
+    int firstAsks = 0;                       // (the test hook: other ranks' first requests answered)
+    auto give = [&](const MPI_Status& status) {
+      const std::vector<char> bytes = receive(status);
+      int asked = -1;
+      if (bytes.size() == sizeof(int)) std::memcpy(&asked, bytes.data(), sizeof(int));
+      if (asked != pass) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
+      ++firstAsks;
+      std::vector<int> given;
+      size_t cut = 0;
+      if (nextRound < rounds.size()) {
+        const size_t u0 = rounds[nextRound].first, u1 = rounds.back().second;
+        cut = u1;
+        while (cut > u0) {
+          const int tile = mine.tileOf[cut - 1];
+          const size_t pixels = size_t(tiles.rect(tile).pixels());
+          if (cut < u0 + pixels || 2 * (u1 - cut + pixels) > u1 - u0) break;  // (not all unstarted, or more than half)
+          cut -= pixels;
+          given.push_back(tile);
+        }
+      }
+      std::vector<char> out(2 * sizeof(int));
+      const int count = int(given.size());
+      std::memcpy(out.data(), &pass, sizeof(int));
+      std::memcpy(out.data() + sizeof(int), &count, sizeof(int));
+      for (int tile : given) {
+        const char* t = reinterpret_cast<const char*>(&tile);
+        out.insert(out.end(), t, t + sizeof(int));
+      }
+      for (int tile : given) {
+        const char* sums = reinterpret_cast<const char*>(mine.blocks[size_t(tile)].get());
+        out.insert(out.end(), sums, sums + size_t(tiles.rect(tile).pixels()) * sizeof(PixelSums));
+        mine.blocks[size_t(tile)].reset();  // (its pixels lie past `cut`: no round reads them now)
+      }
+      if (!given.empty()) {
+        while (rounds.size() > nextRound && rounds.back().first >= cut) rounds.pop_back();
+        if (rounds.size() > nextRound && rounds.back().second > cut) rounds.back().second = cut;
+        movedMine += count;
+        moved = true;
+      }
+      handOut.send(std::move(out), status.MPI_SOURCE, kGivenTiles);
+    };
+    auto take = [&](const MPI_Status& status) {
+      const std::vector<char> bytes = receive(status);
+      int header[2] = {-1, -1};
+      if (bytes.size() >= sizeof header) std::memcpy(header, bytes.data(), sizeof header);
+      if (header[0] != pass || header[1] < 0 || header[1] > n || status.MPI_SOURCE != asking) MPI_Abort(MPI_COMM_WORLD, 1);
+      size_t at = sizeof header + size_t(header[1]) * sizeof(int);
+      if (bytes.size() < at) MPI_Abort(MPI_COMM_WORLD, 1);
+      // (Past the last round lie only the pixels of tiles given away; a Wave reads its pixels
+      // only while it starts, so the lists may grow under rounds in flight.)
+      mine.truncate(rounds.empty() ? 0 : rounds.back().second);
+      const size_t from = mine.pixels.size();
+      for (int k = 0; k < header[1]; ++k) {
+        int tile = -1;
+        std::memcpy(&tile, bytes.data() + sizeof header + size_t(k) * sizeof(int), sizeof(int));
+        if (tile < 0 || tile >= n || mine.blocks[size_t(tile)]) MPI_Abort(MPI_COMM_WORLD, 1);
+        const size_t pixels = size_t(tiles.rect(tile).pixels());
+        if (bytes.size() < at + pixels * sizeof(PixelSums)) MPI_Abort(MPI_COMM_WORLD, 1);
+        mine.blocks[size_t(tile)] = std::make_unique<PixelSums[]>(pixels);
+        PixelSums* block = mine.blocks[size_t(tile)].get();
+        std::memcpy(static_cast<void*>(block), bytes.data() + at, pixels * sizeof(PixelSums));
+        at += pixels * sizeof(PixelSums);
+        mine.append(tiles, tile);
+      }
+      if (at != bytes.size()) MPI_Abort(MPI_COMM_WORLD, 1);
+      addRounds(from, mine.pixels.size());
+      asking = -1;
+      if (header[1] == 0) {
+        exhausted = ++refusals >= ranks - 1;
+      } else {
+        refusals = 0;
+        moved = true;
+        for (Round& round : slots)
+          if (round.step == Round::kIdle) round.step = Round::kStart;
+      }
+    };
+    // Answers requests for tiles and takes the answers to this rank's; whether any came.
+    auto serveTiles = [&] {
+      bool any = false;
+      for (bool came = true; came;) {
+        came = false;
+        for (int tag : {kTakeTiles, kGivenTiles}) {
+          int flag = 0;
+          MPI_Status status;
+          MPI_Iprobe(MPI_ANY_SOURCE, tag, MPI_COMM_WORLD, &flag, &status);
+          if (!flag) continue;
+          came = any = true;
+          if (tag == kTakeTiles)
+            give(status);
+          else
+            take(status);
+        }
+      }
+      handOut.progress();
+      return any;
+    };
+    // (The test hook: rank 0, holding every tile, answers every other rank's first request
+    // before it starts a round.)
+    if (pass == 0 && rank == 0 && dealAllToFirstForTest())
+      while (firstAsks < ranks - 1) {
+        const auto t0 = Clock::now();
+        if (!serveTiles()) tracer.waited(t0);
+      }
+
     // The round's next stage asked of the ranks, or, when no path asks for a ray, the round's
     // samples added to its pixels' sums and the slot on to its next round.
     auto advance = [&](Round& round, int slot) {
       if (!round.wave.pending()) {
         round.wave.finish([&](size_t i) -> PixelSums& { return *mine.sums[round.p0 + i]; });
-        round.index += kSlots;
         round.step = Round::kStart;
         return true;
       }
@@ -811,6 +963,16 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     for (;;) {
       const auto look = Clock::now();
       bool open = false, stepped = tracer.serve(flights, traced.traversal);
+      stepped = serveTiles() || stepped;
+      size_t inFlight = 0;
+      for (const Round& round : slots) inFlight += round.step != Round::kIdle && round.step != Round::kStart;
+      if (!exhausted && asking < 0 && nextRound >= rounds.size() && inFlight <= kAskWhenInFlight) {
+        std::vector<char> ask(sizeof(int));
+        std::memcpy(ask.data(), &pass, sizeof(int));
+        handOut.send(std::move(ask), victim, kTakeTiles);
+        asking = victim;
+        victim = (victim + 1) % ranks == rank ? (victim + 2) % ranks : (victim + 1) % ranks;
+      }
       for (int k = 0; k < kSlots; ++k) {
         Round& round = slots[size_t(k)];
         if (round.step == Round::kIdle) continue;
@@ -818,12 +980,13 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         if (round.step == Round::kWait && round.flight.waiting > 0) continue;
         const auto t0 = Clock::now();
         if (round.step == Round::kStart) {
-          if (round.index >= rounds) {
+          if (nextRound >= rounds.size()) {
             round.step = Round::kIdle;
             continue;
           }
-          round.p0 = round.index * maxPixels;
-          round.p1 = std::min(mine.pixels.size(), round.p0 + maxPixels);
+          round.p0 = rounds[nextRound].first;
+          round.p1 = rounds[nextRound].second;
+          ++nextRound;
           round.seconds = 0;
           round.wave.start(camera, integrator, options, mine.pixels.data() + round.p0, round.p1 - round.p0, s0, s1);
         } else {  // every rank asked has answered: the stage's hits to its paths
@@ -839,26 +1002,43 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         stepped = true;
         break;  // (then the other ranks' rays that came meanwhile)
       }
-      if (!open) break;
+      if (!open && exhausted && asking < 0) break;
       if (!stepped) tracer.waited(look);
     }
-    tracer.finishPass(flights, traced.traversal);
+    tracer.finishPass(flights, traced.traversal, serveTiles);
     s0 = s1;
-    // Every rank's costs of the pass and whether any rank was asked to stop, in one collective.
-    std::vector<double> shared(size_t(n + ranks + 1), 0.0);
-    for (int tile : mine.tiles) shared[size_t(tile)] = tileSeconds[size_t(tile)];
+    // Every rank's costs of the pass, its tiles (rank + 1 for each it holds: tiles moved during
+    // the pass) and whether any rank was asked to stop, in one collective.
+    std::vector<double> shared(size_t(2 * n + ranks + 1), 0.0);
+    for (int tile = 0; tile < n; ++tile)
+      if (mine.blocks[size_t(tile)]) {
+        shared[size_t(tile)] = tileSeconds[size_t(tile)];
+        shared[size_t(n + ranks + 1 + tile)] = rank + 1;
+      }
     shared[size_t(n + rank)] = since(passStart) - (tracer.waitSeconds - waitedBefore);
     shared[size_t(n + ranks)] = stopRequested() ? 1 : 0;
     tracer.sumOverRanks(shared);
+    for (int tile = 0; tile < n; ++tile) owner[size_t(tile)] = int(shared[size_t(n + ranks + 1 + tile)]) - 1;
+    if (moved) mine.list(tiles);  // (this rank's tiles as they are now)
     if (shared[size_t(n + ranks)] > 0) break;  // any rank's request: every rank stops here
     std::fill(tileSeconds.begin(), tileSeconds.end(), 0.0);
     if (s0 >= options.spp) break;
     const std::vector<double> cost(shared.begin(), shared.begin() + n);
     std::vector<int> next(owner.size());
-    if (rotateTilesForTest()) {
+    if (rotate) {
       for (size_t t = 0; t < owner.size(); ++t) next[t] = (owner[t] + 1) % ranks;
     } else {
-      next = dealTilesByCost(owner, deal.first, cost, std::vector<double>(shared.begin() + n, shared.begin() + n + ranks));
+      // Dealt again from the pass's deal, not from where tiles went during it (a tile taken by a
+      // rank its rays do not reach first would stay there, its rays asked of the giver in every
+      // pass): by what each rank's dealt tiles cost, i.e. its busy seconds with the cost of the
+      // tiles it gave away added back and of those it took taken off.
+      std::vector<double> busy(shared.begin() + n, shared.begin() + n + ranks);
+      for (int tile = 0; tile < n; ++tile)
+        if (owner[size_t(tile)] != dealt[size_t(tile)]) {
+          busy[size_t(owner[size_t(tile)])] -= cost[size_t(tile)];
+          busy[size_t(dealt[size_t(tile)])] += cost[size_t(tile)];
+        }
+      next = dealTilesByCost(dealt, deal.first, cost, busy);
     }
     if (next != owner) {
       const auto t0 = Clock::now();
@@ -869,11 +1049,12 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     }
     // The costliest tiles first: the pass's last rounds are its cheapest, and the ranks finish it
     // nearer together.
-    mine.list(tiles, cost);
+    mine.list(tiles, cost, deal.first, rank);
   }
   // Every rank knows whether the frame stopped short (a sequence then ends on every rank).
   const bool stoppedShort = s0 < options.spp;
   tracer.drain();
+  handOut.drain();
 
   // Rank 0 gathers every rank's tiles.
   RenderResult result;

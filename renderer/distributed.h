@@ -74,7 +74,8 @@ struct RankFigures {
   // (rays, and hits back), and the seconds it waited for other ranks' messages (busySeconds: the
   // rest of the frame's).
   std::vector<double> raysAsked, raysSent, raysReceived, bytesSent, waitSeconds;
-  // Data-parallel: per rank, the tiles it handed to other ranks between passes (dealTilesByCost).
+  // Per rank, the tiles it handed to other ranks: image-parallel, to ranks that ran out; data-
+  // parallel, between passes (dealTilesByCost) and during a pass to ranks that ran out.
   std::vector<int> tilesMoved;
   // Adds another frame's figures, rank by rank (a sequence's stats are its frames' sums).
   void add(const RankFigures& frame);
@@ -89,6 +90,11 @@ struct RankFigures {
 // Bit for bit the image of renderFrame, whatever the ranks and threads.
 RenderResult renderFrameDistributed(MpiJob& job, const Camera& camera, const Integrator& integrator,
                                     const RenderOptions& options, Film& film, Film* direct, RankFigures* figures);
+
+// The test hook ISOTRACE_TEST_DEAL=first: every tile starts on rank 0, which answers each other
+// rank's first request for tiles before it renders one, so that the others take all their work
+// from it whatever the machine's speed (image- and data-parallel; tests/mpi_test.cpp).
+bool dealAllToFirstForTest();
 
 // Between two passes of a data-parallel frame, the tiles dealt again by what the last pass cost:
 // `owner[t]` is tile t's rank, `cost[t]` the seconds its owner spent on the tile's own paths in
@@ -108,7 +114,8 @@ std::vector<int> dealTilesByCost(std::vector<int> owner, const std::vector<int>&
 // part of each volume (SceneDesc::dataPart). Tiles go to the rank whose volume box their centre
 // ray enters first, in equal shares, and are dealt again between passes by what they cost
 // (dealTilesByCost); a rank renders its tiles pass by pass with the wavefront flow's stages, in
-// rounds of paths of which several are in flight. At each stage a rank traces its own rays whole
+// rounds of paths of which several are in flight, and a rank with no round left to start takes
+// unstarted tiles (with their sums) from another during the pass. At each stage a rank traces its own rays whole
 // and sends each to the ranks whose volume part it reaches (past its own hit: no further than two
 // cell diagonals), which answer against their iso-surfaces (a closest hit, or whether a shadow
 // segment is blocked) whenever they look, between steps of their own; the asker keeps the

@@ -17,13 +17,6 @@ namespace iso {
 
 using namespace mpi;
 
-namespace {
-
-// The rank that starts with tile (tileX, tileY): the tiles dealt along the diagonals, so that
-// next to a tile are the other ranks' (a costly object's tiles, which lie together, are shared
-// out evenly). ISOTRACE_TEST_DEAL=first deals every tile to rank 0 (the tests' way to make the
-// other ranks take all their work from it), which then answers every other rank's first request
-// before it renders a tile (so that they take some whatever the machine's speed).
 bool dealAllToFirstForTest() {
   static const bool first = [] {
     const char* v = std::getenv("ISOTRACE_TEST_DEAL");
@@ -32,6 +25,12 @@ bool dealAllToFirstForTest() {
   return first;
 }
 
+namespace {
+
+// The rank that starts with tile (tileX, tileY): the tiles dealt along the diagonals, so that
+// next to a tile are the other ranks' (a costly object's tiles, which lie together, are shared
+// out evenly), or with ISOTRACE_TEST_DEAL=first every tile to rank 0 (dealAllToFirstForTest),
+// which then answers every other rank's first request before it renders a tile.
 int ownerOf(int tileX, int tileY, int ranks) { return dealAllToFirstForTest() ? 0 : (tileX + tileY) % ranks; }
 
 // A tile handed from one rank to another: which, its next pass and that pass's first sample;

@@ -28,6 +28,10 @@ enum Tag : int {
   // named in the message), and what that rank found (an answer to one ask).
   kAsk = 16,
   kAnswer = 17,
+  // Data-parallel, during a pass: a rank with no round left to start asks another for tiles
+  // (the pass's index), which answers with a count of tiles (0: none), their indices and sums.
+  kTakeTiles = 18,
+  kGivenTiles = 19,
 };
 
 using Clock = std::chrono::steady_clock;

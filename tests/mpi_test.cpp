@@ -399,6 +399,38 @@ TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
   }
 }
 
+// A data-parallel rank with no round left to start takes tiles from another during the pass (the
+// giver's unstarted tiles from the end of its list, at most half, with their sums).
+// ISOTRACE_TEST_DEAL=first deals every tile to rank 0, which answers every other rank's first
+// request before it starts a round, so the others take tiles in the first pass whatever the
+// machine's speed: the image stays the single process's, bit for bit, on 2 and 3 ranks, and
+// every tile is in the gathered frame once.
+TEST(Mpi, DataParallelRanksThatRunOutTakeTilesDuringAPass) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 64, "height": 48})", R"({"type": "path", "spp": 5, "max_depth": 5})",
+                                               R"(, {"type": "environment", "radiance": 0.3})"));
+  const std::string common = " render " + dir + "/s.json --data-parallel --quiet --aov albedo,normal,depth";
+  const auto one = runIsotrace(common.substr(1) + " --threads 2 -o " + dir + "/one.exr --stats " + dir + "/one.json");
+  ASSERT_EQ(one.status, 0) << one.err;
+  const std::vector<float> reference = readExr(dir + "/one.exr");
+  ASSERT_FALSE(reference.empty());
+  for (int ranks : {2, 3}) {
+    SCOPED_TRACE(ranks);
+    const std::string out = dir + "/taken" + std::to_string(ranks);
+    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_DEAL=first " + ISOTRACE_BINARY + common + " --threads 1 -o " +
+                              out + ".exr --stats " + out + ".json");
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(readExr(out + ".exr"), reference);
+    const nlohmann::json stats = readJson(out + ".json");
+    EXPECT_EQ(stats["rays"], readJson(dir + "/one.json")["rays"]);
+    int tiles = 0;
+    for (int q = 0; q < ranks; ++q) tiles += stats["tiles_per_rank"][size_t(q)].get<int>();
+    EXPECT_EQ(tiles, 12) << stats.dump();  // 64x48: 4x3 tiles of 16
+    // Rank 0 gave half its 12 tiles to the first asker (and half the rest to the next).
+    EXPECT_GE(stats["tiles_moved_per_rank"][0].get<int>(), ranks == 2 ? 6 : 9) << stats.dump();
+  }
+}
+
 // Which tiles move between passes (dealTilesByCost): from the busier rank to the idler, the
 // receiver's own tiles (whose centre ray enters its box first) first, then tiles that see no
 // volume, each only while it fits in the gap to the mean; never a tile whose rays enter another
