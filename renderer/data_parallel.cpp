@@ -75,6 +75,7 @@ class RankTracer {
           cells.push_back({at[0], at[1], at[2]});
         }
       m_volumes.push_back(SplitVolume(*volumes[k], cells, rank));
+      m_asksAny = m_asksAny || !m_volumes.back().holdsAll;
     }
   }
 
@@ -93,7 +94,7 @@ class RankTracer {
     parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
     // The rays each rank is asked about (with their ends), then each message written at once.
     for (std::vector<Selected>& list : m_selected) list.clear();
-    for (size_t i = 0; i < n; ++i) {
+    for (size_t i = 0; i < n && m_asksAny; ++i) {
       if (b.shadow && b.found[i]) continue;
       const Ray& ray = b.rays[i];
       float tfar = ray.tfar;
@@ -104,7 +105,10 @@ class RankTracer {
       if (!whomToAsk(ray, tfar, m_ask)) continue;
       const bool whole = !isShort(ray);
       for (int q = 0; q < m_ranks; ++q)
-        if (m_ask[size_t(q)]) m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole});
+        if (m_ask[size_t(q)]) {
+          m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole});
+          m_ask[size_t(q)] = 0;
+        }
     }
     raysAsked += double(n);
     f.waiting = 0;
@@ -454,8 +458,8 @@ class RankTracer {
   // any): those whose own box of some volume the segment passes through where this rank does not
   // hold the bricks (its copies of their bricks, "replicate"). Most segments lie wholly in this
   // rank's part of every volume (a ray from a hit here to the next hit here): one test each.
+  // (`ask` is all 0 when called: the caller clears what it read.)
   bool whomToAsk(const Ray& r, float tfar, std::vector<char>& ask) const {
-    std::fill(ask.begin(), ask.end(), 0);
     bool any = false;
     for (const SplitVolume& v : m_volumes) {
       if (v.holdsAll) continue;
@@ -590,6 +594,7 @@ class RankTracer {
     }
   };
   std::vector<SplitVolume> m_volumes;
+  bool m_asksAny = false;  // whether this rank may ask another anything (it does not hold every volume whole)
   // A ray of a stage asked of a rank: its index in the flight, the end the rank is asked to look
   // to, and whether it goes whole (AskedWhole) or as an AskedShort.
   struct Selected {
