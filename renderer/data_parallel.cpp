@@ -145,22 +145,12 @@ class RankTracer {
   // a closest hit kept if it is closer (of equal ones the lower rank's), a shadow ray blocked if
   // any rank blocks it. Whether anything came.
   bool serve(std::vector<Flight*>& flights, TraversalStats& stats) {
-    bool any = false;
-    for (bool came = true; came;) {
-      came = false;
-      for (int tag : {kAsk, kAnswer}) {
-        int flag = 0;
-        MPI_Status status;
-        MPI_Iprobe(MPI_ANY_SOURCE, tag, MPI_COMM_WORLD, &flag, &status);
-        if (!flag) continue;
-        came = any = true;
-        if (tag == kAsk)
-          answer(status, stats);
-        else
-          take(status, flights);
-      }
-    }
-    return any;
+    return handleWhatCame(kAsk, kAnswer, [&](int tag, const MPI_Status& status) {
+      if (tag == kAsk)
+        answer(status, stats);
+      else
+        take(status, flights);
+    });
   }
 
   // Waits for, and answers, the other ranks until every rank has finished its flights of the pass
@@ -926,21 +916,12 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
     };
     // Answers requests for tiles and takes the answers to this rank's; whether any came.
     auto serveTiles = [&] {
-      bool any = false;
-      for (bool came = true; came;) {
-        came = false;
-        for (int tag : {kTakeTiles, kGivenTiles}) {
-          int flag = 0;
-          MPI_Status status;
-          MPI_Iprobe(MPI_ANY_SOURCE, tag, MPI_COMM_WORLD, &flag, &status);
-          if (!flag) continue;
-          came = any = true;
-          if (tag == kTakeTiles)
-            give(status);
-          else
-            take(status);
-        }
-      }
+      const bool any = handleWhatCame(kTakeTiles, kGivenTiles, [&](int tag, const MPI_Status& status) {
+        if (tag == kTakeTiles)
+          give(status);
+        else
+          take(status);
+      });
       handOut.progress();
       return any;
     };

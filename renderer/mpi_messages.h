@@ -56,6 +56,25 @@ class Outbox {
   std::vector<Pending> m_pending;
 };
 
+// Handles every message of the two tags that has come (`handle(tag, status)`, which receives it),
+// looking again until none has; whether any came.
+template <typename Handle>
+bool handleWhatCame(int tagA, int tagB, Handle&& handle) {
+  bool any = false;
+  for (bool came = true; came;) {
+    came = false;
+    for (int tag : {tagA, tagB}) {
+      int flag = 0;
+      MPI_Status status;
+      MPI_Iprobe(MPI_ANY_SOURCE, tag, MPI_COMM_WORLD, &flag, &status);
+      if (!flag) continue;
+      came = any = true;
+      handle(tag, status);
+    }
+  }
+  return any;
+}
+
 // Receives the message `status` announced, whole.
 std::vector<char> receive(const MPI_Status& status);
 // The same into `buffer` (resized to the message; a buffer reused for every message of a kind

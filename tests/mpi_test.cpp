@@ -14,6 +14,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <map>
 
@@ -168,7 +169,7 @@ TEST(Mpi, DenoisedOnceOnTheGatheredImage) {
                                 " --threads 1 --quiet -o " + dir + "/two.exr");
     ASSERT_EQ(two.status, 0) << two.err;
     const bool compare = flags.find("compare") != std::string::npos;
-    for (const std::string part : compare ? std::vector<std::string>{".direct", ".global", ".indirect"}
+    for (const std::string& part : compare ? std::vector<std::string>{".direct", ".global", ".indirect"}
                                           : std::vector<std::string>{""}) {
       const std::vector<float> a = readExr(dir + "/one" + part + ".exr");
       ASSERT_FALSE(a.empty()) << part;
@@ -367,12 +368,14 @@ std::string glassNeghip(const std::string& film, const std::string& integrator, 
     "lights": [{"type": "directional", "direction": [0.4, -1, 0.5], "irradiance": 2.5})" + moreLights + "]}";
 }
 
-// Tiles dealt again between passes (ISOTRACE_TEST_REDEAL=rotate: every tile to the next rank
-// after every pass, its sums with it): the image stays the single process's, bit for bit, on 2
-// and 3 ranks, and every tile is in the gathered frame once.
-TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
+// neghip with a glass skin on a `width` x `height` film at `spp`, rendered data-parallel on 2
+// and 3 ranks with a test hook (`hook`, an environment setting): the image is the single
+// process's, bit for bit, with the same rays; `check(ranks, stats)` looks at each run's stats.
+void expectTheSingleProcessImageWith(const std::string& hook, int width, int height, int spp,
+                                     const std::function<void(int, const nlohmann::json&)>& check) {
   const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 56, "height": 40})", R"({"type": "path", "spp": 6, "max_depth": 5})",
+  test::writeText(dir + "/s.json", glassNeghip(R"({"width": )" + std::to_string(width) + R"(, "height": )" + std::to_string(height) + "}",
+                                               R"({"type": "path", "spp": )" + std::to_string(spp) + R"(, "max_depth": 5})",
                                                R"(, {"type": "environment", "radiance": 0.3})"));
   const std::string common = " render " + dir + "/s.json --data-parallel --quiet --aov albedo,normal,depth";
   const auto one = runIsotrace(common.substr(1) + " --threads 2 -o " + dir + "/one.exr --stats " + dir + "/one.json");
@@ -381,13 +384,22 @@ TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
   ASSERT_FALSE(reference.empty());
   for (int ranks : {2, 3}) {
     SCOPED_TRACE(ranks);
-    const std::string out = dir + "/moved" + std::to_string(ranks);
-    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_REDEAL=rotate " + ISOTRACE_BINARY + common + " --threads 1 -o " +
-                              out + ".exr --stats " + out + ".json");
+    const std::string out = dir + "/ranks" + std::to_string(ranks);
+    const auto r = runCommand(mpirun(ranks) + "-x " + hook + " " + ISOTRACE_BINARY + common + " --threads 1 -o " + out +
+                              ".exr --stats " + out + ".json");
     ASSERT_EQ(r.status, 0) << r.err;
     EXPECT_EQ(readExr(out + ".exr"), reference);
     const nlohmann::json stats = readJson(out + ".json");
     EXPECT_EQ(stats["rays"], readJson(dir + "/one.json")["rays"]);
+    check(ranks, stats);
+  }
+}
+
+// Tiles dealt again between passes (ISOTRACE_TEST_REDEAL=rotate: every tile to the next rank
+// after every pass, its sums with it): the image stays the single process's, bit for bit, on 2
+// and 3 ranks, and every tile is in the gathered frame once.
+TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
+  expectTheSingleProcessImageWith("ISOTRACE_TEST_REDEAL=rotate", 56, 40, 6, [](int ranks, const nlohmann::json& stats) {
     // 56x40 pixels: 4x3 tiles of 16, each moved after each of the first 3 passes (1, 1, 2, 2 samples).
     int tiles = 0, moved = 0;
     for (int q = 0; q < ranks; ++q) {
@@ -396,7 +408,7 @@ TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
     }
     EXPECT_EQ(tiles, 12) << stats.dump();
     EXPECT_EQ(moved, 3 * 12) << stats.dump();
-  }
+  });
 }
 
 // A data-parallel rank with no round left to start takes tiles from another during the pass (the
@@ -406,29 +418,13 @@ TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
 // machine's speed: the image stays the single process's, bit for bit, on 2 and 3 ranks, and
 // every tile is in the gathered frame once.
 TEST(Mpi, DataParallelRanksThatRunOutTakeTilesDuringAPass) {
-  const std::string dir = test::scratchDir();
-  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 64, "height": 48})", R"({"type": "path", "spp": 5, "max_depth": 5})",
-                                               R"(, {"type": "environment", "radiance": 0.3})"));
-  const std::string common = " render " + dir + "/s.json --data-parallel --quiet --aov albedo,normal,depth";
-  const auto one = runIsotrace(common.substr(1) + " --threads 2 -o " + dir + "/one.exr --stats " + dir + "/one.json");
-  ASSERT_EQ(one.status, 0) << one.err;
-  const std::vector<float> reference = readExr(dir + "/one.exr");
-  ASSERT_FALSE(reference.empty());
-  for (int ranks : {2, 3}) {
-    SCOPED_TRACE(ranks);
-    const std::string out = dir + "/taken" + std::to_string(ranks);
-    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_DEAL=first " + ISOTRACE_BINARY + common + " --threads 1 -o " +
-                              out + ".exr --stats " + out + ".json");
-    ASSERT_EQ(r.status, 0) << r.err;
-    EXPECT_EQ(readExr(out + ".exr"), reference);
-    const nlohmann::json stats = readJson(out + ".json");
-    EXPECT_EQ(stats["rays"], readJson(dir + "/one.json")["rays"]);
+  expectTheSingleProcessImageWith("ISOTRACE_TEST_DEAL=first", 64, 48, 5, [](int ranks, const nlohmann::json& stats) {
     int tiles = 0;
     for (int q = 0; q < ranks; ++q) tiles += stats["tiles_per_rank"][size_t(q)].get<int>();
     EXPECT_EQ(tiles, 12) << stats.dump();  // 64x48: 4x3 tiles of 16
     // Rank 0 gave half its 12 tiles to the first asker (and half the rest to the next).
     EXPECT_GE(stats["tiles_moved_per_rank"][0].get<int>(), ranks == 2 ? 6 : 9) << stats.dump();
-  }
+  });
 }
 
 // Which tiles move between passes (dealTilesByCost): from the busier rank to the idler, the
