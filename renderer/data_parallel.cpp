@@ -94,7 +94,7 @@ class RankTracer {
     parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
     // The rays each rank is asked about (with their ends), then each message written at once.
     for (std::vector<Selected>& list : m_selected) list.clear();
-    for (size_t i = 0; i < n && m_asksAny; ++i) {
+    for (size_t i = 0; m_asksAny && i < n; ++i) {
       if (b.shadow && b.found[i]) continue;
       const Ray& ray = b.rays[i];
       float tfar = ray.tfar;
@@ -632,6 +632,24 @@ struct RankTiles {
     list(renderer);
   }
 
+  // A tile's sums appended to `out` (as bytes), and its block let go: the tile is another rank's.
+  void handOver(const TileRenderer& renderer, int tile, std::vector<char>& out) {
+    const char* p = reinterpret_cast<const char*>(blocks[size_t(tile)].get());
+    out.insert(out.end(), p, p + size_t(renderer.rect(tile).pixels()) * sizeof(PixelSums));
+    blocks[size_t(tile)].reset();
+  }
+  // A tile handed over: its block made from the sums at `at` in `bytes` (`at` moved past them).
+  // Whether they were all there and the tile was not already here.
+  bool takeOver(const TileRenderer& renderer, int tile, const std::vector<char>& bytes, size_t& at) {
+    if (tile < 0 || tile >= renderer.tiles() || blocks[size_t(tile)]) return false;
+    const size_t n = size_t(renderer.rect(tile).pixels());
+    if (bytes.size() < at || bytes.size() - at < n * sizeof(PixelSums)) return false;
+    blocks[size_t(tile)] = std::make_unique<PixelSums[]>(n);
+    std::memcpy(static_cast<void*>(blocks[size_t(tile)].get()), bytes.data() + at, n * sizeof(PixelSums));
+    at += n * sizeof(PixelSums);
+    return true;
+  }
+
   // Dealt again (`before` the owners so far, `after` the new ones): every tile this rank gives
   // away goes to its new rank with its sums (one message a tile, in tile order), every tile it
   // gets comes with its sums from the rank that had it (collective among the ranks concerned).
@@ -642,25 +660,21 @@ struct RankTiles {
       if (before[size_t(tile)] != rank || after[size_t(tile)] == rank) continue;
       std::vector<char> bytes(sizeof(int));
       std::memcpy(bytes.data(), &tile, sizeof(int));
-      const char* p = reinterpret_cast<const char*>(blocks[size_t(tile)].get());
-      bytes.insert(bytes.end(), p, p + size_t(renderer.rect(tile).pixels()) * sizeof(PixelSums));
+      handOver(renderer, tile, bytes);
       outbox.send(std::move(bytes), after[size_t(tile)], kMoved);
     }
     for (int tile = 0; tile < renderer.tiles(); ++tile) {
       if (after[size_t(tile)] != rank || before[size_t(tile)] == rank) continue;
-      const size_t n = size_t(renderer.rect(tile).pixels());
       MPI_Status status;
       MPI_Probe(before[size_t(tile)], kMoved, MPI_COMM_WORLD, &status);
       const std::vector<char> bytes = receive(status);
       int sent = -1;
-      if (bytes.size() == sizeof(int) + n * sizeof(PixelSums)) std::memcpy(&sent, bytes.data(), sizeof(int));
-      if (sent != tile) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
-      blocks[size_t(tile)] = std::make_unique<PixelSums[]>(n);
-      std::memcpy(static_cast<void*>(blocks[size_t(tile)].get()), bytes.data() + sizeof(int), n * sizeof(PixelSums));
+      if (bytes.size() >= sizeof(int)) std::memcpy(&sent, bytes.data(), sizeof(int));
+      size_t at = sizeof(int);
+      if (sent != tile || !takeOver(renderer, tile, bytes, at) || at != bytes.size())
+        MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
     }
     outbox.drain();
-    for (int tile : tiles)
-      if (after[size_t(tile)] != rank) blocks[size_t(tile)].reset();
   }
 
   // The pixel lists cut to their first n (the tiles list stays).
@@ -866,11 +880,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
         const char* t = reinterpret_cast<const char*>(&tile);
         out.insert(out.end(), t, t + sizeof(int));
       }
-      for (int tile : given) {
-        const char* sums = reinterpret_cast<const char*>(mine.blocks[size_t(tile)].get());
-        out.insert(out.end(), sums, sums + size_t(tiles.rect(tile).pixels()) * sizeof(PixelSums));
-        mine.blocks[size_t(tile)].reset();  // (its pixels lie past `cut`: no round reads them now)
-      }
+      for (int tile : given) mine.handOver(tiles, tile, out);  // (its pixels lie past `cut`: no round reads them now)
       if (!given.empty()) {
         while (rounds.size() > nextRound && rounds.back().first >= cut) rounds.pop_back();
         if (rounds.size() > nextRound && rounds.back().second > cut) rounds.back().second = cut;
@@ -893,13 +903,7 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       for (int k = 0; k < header[1]; ++k) {
         int tile = -1;
         std::memcpy(&tile, bytes.data() + sizeof header + size_t(k) * sizeof(int), sizeof(int));
-        if (tile < 0 || tile >= n || mine.blocks[size_t(tile)]) MPI_Abort(MPI_COMM_WORLD, 1);
-        const size_t pixels = size_t(tiles.rect(tile).pixels());
-        if (bytes.size() < at + pixels * sizeof(PixelSums)) MPI_Abort(MPI_COMM_WORLD, 1);
-        mine.blocks[size_t(tile)] = std::make_unique<PixelSums[]>(pixels);
-        PixelSums* block = mine.blocks[size_t(tile)].get();
-        std::memcpy(static_cast<void*>(block), bytes.data() + at, pixels * sizeof(PixelSums));
-        at += pixels * sizeof(PixelSums);
+        if (!mine.takeOver(tiles, tile, bytes, at)) MPI_Abort(MPI_COMM_WORLD, 1);
         mine.append(tiles, tile);
       }
       if (at != bytes.size()) MPI_Abort(MPI_COMM_WORLD, 1);
@@ -950,9 +954,10 @@ RenderResult renderFrameDataParallel(MpiJob& job, const Camera& camera, const In
       const auto look = Clock::now();
       bool open = false, stepped = tracer.serve(flights, traced.traversal);
       stepped = serveTiles() || stepped;
-      size_t inFlight = 0;
-      for (const Round& round : slots) inFlight += round.step != Round::kIdle && round.step != Round::kStart;
-      if (!exhausted && asking < 0 && nextRound >= rounds.size() && inFlight <= kAskWhenInFlight) {
+      auto inFlight = [&] {
+        return size_t(std::count_if(slots.begin(), slots.end(), [](const Round& r) { return r.step == Round::kWait; }));
+      };
+      if (!exhausted && asking < 0 && nextRound >= rounds.size() && inFlight() <= kAskWhenInFlight) {
         std::vector<char> ask(sizeof(int));
         std::memcpy(ask.data(), &pass, sizeof(int));
         handOut.send(std::move(ask), victim, kTakeTiles);

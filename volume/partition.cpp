@@ -9,6 +9,18 @@
 namespace iso {
 namespace {
 
+// The index of brick (x, y, z).
+uint32_t brickIndex(const BrickGrid& bricks, int x, int y, int z) {
+  const Vec3i n = bricks.count();
+  return uint32_t((size_t(z) * size_t(n.y) + size_t(y)) * size_t(n.x) + size_t(x));
+}
+
+// The cells [cellLo, cellHi) of the bricks [brickLo, brickHi) of `box`.
+void setCells(RankBox& box, const BrickGrid& bricks) {
+  box.cellLo = bricks.cellBegin(brickIndex(bricks, box.brickLo.x, box.brickLo.y, box.brickLo.z));
+  box.cellHi = bricks.cellEnd(brickIndex(bricks, box.brickHi.x - 1, box.brickHi.y - 1, box.brickHi.z - 1));
+}
+
 struct Splitter {
   const BrickGrid& bricks;
   const std::vector<double>& weights;
@@ -17,10 +29,7 @@ struct Splitter {
   std::vector<RankBox> out;
 
   double weightOf(uint32_t b) const { return byCount ? 1.0 : weights[b]; }
-  uint32_t index(int x, int y, int z) const {
-    const Vec3i n = bricks.count();
-    return uint32_t((size_t(z) * size_t(n.y) + size_t(y)) * size_t(n.x) + size_t(x));
-  }
+  uint32_t index(int x, int y, int z) const { return brickIndex(bricks, x, y, z); }
 
   void split(Vec3i lo, Vec3i hi, int ranks) {
     const Vec3i n{hi.x - lo.x, hi.y - lo.y, hi.z - lo.z};
@@ -30,8 +39,7 @@ struct Splitter {
       box.brickLo = lo;
       box.brickHi = hi;
       box.bricks = count;
-      box.cellLo = bricks.cellBegin(index(lo.x, lo.y, lo.z));
-      box.cellHi = bricks.cellEnd(index(hi.x - 1, hi.y - 1, hi.z - 1));
+      setCells(box, bricks);
       for (int z = lo.z; z < hi.z; ++z)
         for (int y = lo.y; y < hi.y; ++y)
           for (int x = lo.x; x < hi.x; ++x) box.weight += weightOf(index(x, y, z));
@@ -111,10 +119,7 @@ RankBox heldBox(const RankBox& own, const BrickGrid& bricks, double replicate) {
   }
   if (layers == 0) return own;
   RankBox held = grown(layers);
-  held.cellLo = bricks.cellBegin(uint32_t((size_t(held.brickLo.z) * size_t(n.y) + size_t(held.brickLo.y)) * size_t(n.x) +
-                                         size_t(held.brickLo.x)));
-  held.cellHi = bricks.cellEnd(uint32_t((size_t(held.brickHi.z - 1) * size_t(n.y) + size_t(held.brickHi.y - 1)) * size_t(n.x) +
-                                        size_t(held.brickHi.x - 1)));
+  setCells(held, bricks);
   held.weight = 0;  // (not summed: the weights are the own box's business)
   return held;
 }
