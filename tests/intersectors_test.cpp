@@ -179,7 +179,9 @@ TEST(Intersectors, IsolationDecidesNearTangentPassesAsTheReference) {
     floatAloneWrong += floatHit != refHit;
     ASSERT_EQ(hit, refHit) << "trial " << trial;
     ASSERT_EQ(IsolationIntersector{}.any(seg), refHit) << "trial " << trial;
-    if (hit) EXPECT_LE(std::fabs(got.s - ref.s), got.sError + 1e-6) << "trial " << trial;
+    if (hit) {
+      EXPECT_LE(std::fabs(got.s - ref.s), got.sError + 1e-6) << "trial " << trial;
+    }
   }
   EXPECT_GT(tested, 10000);
   EXPECT_GT(floatAloneWrong, tested / 100);  // the cases are hard: float alone decides many wrongly
