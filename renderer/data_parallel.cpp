@@ -495,28 +495,28 @@ class RankTracer {
   struct Box {
     Vec3d lo, hi;
     // Narrows [t0, t1] to the part of segment `s` inside the box grown by `pad`; whether any is left.
+    // (This and holds() run for every ray a rank traces: axis by axis, written out, each stopping
+    // at the first axis that decides. Once t0 > t1 no later axis can undo it.)
     bool clip(const Segment& s, double pad, double& t0, double& t1) const {
-      for (int a = 0; a < 3; ++a) {
-        const double lo_ = lo[a] - pad, hi_ = hi[a] + pad;
-        if (s.d[a] == 0) {
-          if (s.o[a] < lo_ || s.o[a] > hi_) return false;
-          continue;
-        }
-        const double inv = 1 / s.d[a];
-        double ta = (lo_ - s.o[a]) * inv, tb = (hi_ - s.o[a]) * inv;
-        if (ta > tb) std::swap(ta, tb);
-        t0 = std::max(t0, ta);
-        t1 = std::min(t1, tb);
-      }
+      return slab(s.o.x, s.d.x, lo.x - pad, hi.x + pad, t0, t1) && slab(s.o.y, s.d.y, lo.y - pad, hi.y + pad, t0, t1) &&
+             slab(s.o.z, s.d.z, lo.z - pad, hi.z + pad, t0, t1) && t0 <= t1;  // (the last: a zero direction)
+    }
+    static bool slab(double o, double d, double lo, double hi, double& t0, double& t1) {
+      if (d == 0) return !(o < lo || o > hi);
+      const double inv = 1 / d;
+      double ta = (lo - o) * inv, tb = (hi - o) * inv;
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
       return t0 <= t1;
     }
-    // Whether point p lies in the box shrunk by `pad`.
-    bool holds(const Vec3d& p, double pad) const {
-      return p.x >= lo.x + pad && p.y >= lo.y + pad && p.z >= lo.z + pad && p.x <= hi.x - pad && p.y <= hi.y - pad &&
-             p.z <= hi.z - pad;
+    // Whether the part [t0, t1] (finite) of segment s lies in the box shrunk by `pad` (a box is
+    // convex: both ends do).
+    bool holds(const Segment& s, double t0, double t1, double pad) const {
+      const Vec3d l{lo.x + pad, lo.y + pad, lo.z + pad}, h{hi.x - pad, hi.y - pad, hi.z - pad};
+      auto in = [&](const Vec3d& p) { return p.x >= l.x && p.y >= l.y && p.z >= l.z && p.x <= h.x && p.y <= h.y && p.z <= h.z; };
+      return in(s.at(t0)) && in(s.at(t1));
     }
-    // Whether the part [t0, t1] (finite) of segment s lies in the box shrunk by `pad` (a box is convex).
-    bool holds(const Segment& s, double t0, double t1, double pad) const { return holds(s.at(t0), pad) && holds(s.at(t1), pad); }
   };
   // A volume split over the ranks, its boxes in its *query space*: world space when the volume's
   // grid axes are the world's (scaled, mirrored, moved: most volumes), so a ray needs no
