@@ -40,7 +40,8 @@ const char* lightKindName(Light::Kind k) {
 // rank's box of whole bricks, balanced by the bricks active for the volume's iso-surfaces, and
 // what the rank would hold of it (with "replicate", its box and the copies of its neighbours'
 // bricks around it).
-void printPartition(const World& world, const std::string& path, int ranks, double replicate) {
+void printPartition(const World& world, const SceneDesc& scene, int ranks, double replicate) {
+  const std::string& path = scene.path;
   std::printf("  data-parallel over %d ranks (render --data-parallel): each holds only its box of each volume "
               "(files and procedural fields are read only for it, OpenVDB and multi-frame DICOM files too; ASCII data whole, then cut); meshes, lights "
               "and the camera on every rank\n", ranks);
@@ -55,7 +56,17 @@ void printPartition(const World& world, const std::string& path, int ranks, doub
     for (const SurfaceInfo& si : world.surfaces())
       if (si.volume == int(v))
         for (uint32_t b : si.surface->activeBricks()) weights[b] = 1;
-    const std::vector<RankBox> boxes = partitionBricks(bricks, weights, ranks, path + ": volume " + std::to_string(v));
+    const CutRays rays = cameraCutRays(scene, scene.camera.frameScene ? nullptr : &world.camera(), v);
+    std::vector<int> cuts;
+    const std::vector<RankBox> boxes =
+        partitionBricks(bricks, weights, ranks, path + ": volume " + std::to_string(v), &rays, &cuts);
+    if (!cuts.empty()) {
+      std::string axes;
+      for (int a : cuts) axes += std::string(axes.empty() ? "" : ", ") + "xyz"[a];
+      std::printf("    volume %zu: cut along %s (%s)\n", v, axes.c_str(),
+                  rays.org.empty() ? "the longest axis: the camera frames the scene, or the file's placement is known only once it is read"
+                                   : "where the fewest of the camera's rays and of rays leaving the surfaces pass");
+    }
     const double whole = double(g.bytes() + bricks.bytes());
     double largest = 0;
     for (size_t r = 0; r < boxes.size(); ++r) {
@@ -195,7 +206,7 @@ int info(const std::string& path, const SceneOverrides& overrides, int ranks) {
     std::printf("    %d %s%s\n", count, kind.c_str(),
                 kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
   if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
-  if (ranks > 0) printPartition(world, path, ranks, scene.settings.replicate);
+  if (ranks > 0) printPartition(world, scene, ranks, scene.settings.replicate);
   for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
   std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
   return 0;

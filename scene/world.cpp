@@ -464,20 +464,58 @@ void checkDataParallel(const SceneDesc& scene) {
   }
 }
 
+CutRays cameraCutRays(const SceneDesc& scene, const CameraDesc* camera, size_t v) {
+  CutRays rays;
+  const VolumeDesc& desc = scene.volumes[v];
+  if (!camera) return rays;
+  Vec3d origin{0, 0, 0}, spacing{1, 1, 1};
+  Transform toWorld;  // (the file's affine)
+  if (desc.array) {
+    origin = desc.array->origin();
+    spacing = desc.array->spacing();
+  } else if (desc.field) {
+    origin = {-1, -1, -1};
+    spacing = proceduralSpacing(desc.resolution);
+  } else if (const std::optional<FilePlacement> file = filePlacement(desc.file, desc.layout, desc.part)) {
+    origin = file->origin;
+    spacing = file->spacing;
+    toWorld = file->toWorld;
+  } else {
+    return rays;
+  }
+  if (desc.origin) origin = *desc.origin;
+  if (desc.spacing) spacing = *desc.spacing;
+  toWorld = desc.transform * toWorld;
+  if (!toWorld.isFiniteInvertible() || !(spacing.x > 0 && spacing.y > 0 && spacing.z > 0)) return rays;
+  const Transform toIndex = Transform::scale({1 / spacing.x, 1 / spacing.y, 1 / spacing.z}) *
+                            Transform::translate(-origin) * toWorld.inverse();
+  const int w = std::max(scene.settings.width, 1), h = std::max(scene.settings.height, 1);
+  const Camera eye(*camera, w, h);
+  constexpr int kAcross = 32, kDown = 18;
+  for (int j = 0; j < kDown; ++j)
+    for (int i = 0; i < kAcross; ++i) {
+      const Ray r = eye.generateRay((float(i) + 0.5f) * float(w) / kAcross, (float(j) + 0.5f) * float(h) / kDown);
+      rays.org.push_back(toIndex.point(Vec3d(r.org)));
+      rays.dir.push_back(toIndex.vector(Vec3d(r.dir)));
+    }
+  return rays;
+}
+
 namespace {
 // This rank's box of volume v (SceneDesc::dataPart) from the ranges of its bricks: boxes of
-// whole bricks balanced by the bricks active for the volume's iso values, the same on every rank;
-// and the box it holds, with the copies of its neighbours' bricks "replicate" allows.
+// whole bricks balanced by the bricks active for the volume's iso values, cut where the fewest of
+// the camera's rays (`camera`, cameraCutRays) and of the rays leaving the surfaces pass, the same
+// on every rank; and the box it holds, with the copies of its neighbours' bricks "replicate" allows.
 struct RankPart {
   RankBox own, held;
 };
-RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
+RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks, const CutRays& camera) {
   const VolumeDesc& desc = scene.volumes[v];
   std::vector<double> weights(bricks.size(), 0.0);
   for (const IsoSurfaceDesc& iso : desc.isosurfaces)
     for (uint32_t b : bricks.activeBricks(float(iso.value))) weights[b] = 1;
-  const RankBox own =
-      partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where)[size_t(scene.dataPart.rank)];
+  const RankBox own = partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where,
+                                      &camera)[size_t(scene.dataPart.rank)];
   return {own, heldBox(own, bricks, scene.settings.replicate)};
 }
 
@@ -487,12 +525,13 @@ RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks) {
 // never holds more than its window (and a compressed file's compressed bytes). Other files are
 // read whole and the window cut from them (docs/distributed.md).
 // (`part`: the boxes it answers for and holds.)
-VolumeFile loadRankVolume(const SceneDesc& scene, size_t v, RankPart& part) {
+VolumeFile loadRankVolume(const SceneDesc& scene, size_t v, const CameraDesc* camera, RankPart& part) {
   const VolumeDesc& desc = scene.volumes[v];
+  const CutRays rays = cameraCutRays(scene, camera, v);
   VolumeFile f;
   if (desc.field && !desc.array) {
     const Vec3i n = desc.resolution;
-    part = rankPart(scene, v, proceduralBrickRanges(*desc.field, n));
+    part = rankPart(scene, v, proceduralBrickRanges(*desc.field, n), rays);
     f.grid = makeProceduralWindow(*desc.field, n, part.held.windowFirst(), part.held.windowExtent(n));
     f.format = "procedural";
     placeVolume(desc, f);
@@ -502,7 +541,7 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v, RankPart& part) {
     // Its bricks' ranges first (the files read or inflated in order, a layer at a time), then
     // only the window's samples.
     if (const std::optional<BrickGrid> ranges = fileBrickRanges(desc.file, desc.layout, desc.part)) {
-      part = rankPart(scene, v, *ranges);
+      part = rankPart(scene, v, *ranges, rays);
       const SampleWindow window{part.held.windowFirst(), part.held.windowExtent(ranges->dims())};
       f = readVolumeFile(desc.file, desc.layout, desc.part, &window);
       placeVolume(desc, f);
@@ -512,7 +551,7 @@ VolumeFile loadRankVolume(const SceneDesc& scene, size_t v, RankPart& part) {
   f = loadVolume(desc);
   if (f.grid.sparse())
     throw InputError(scene.path, desc.where, "a sparse (OpenVDB) volume cannot be split over ranks yet (\"distribution\": \"data\")");
-  part = rankPart(scene, v, BrickGrid(f.grid));
+  part = rankPart(scene, v, BrickGrid(f.grid), rays);
   f.grid = windowOf(f.grid, part.held.windowFirst(), part.held.windowExtent(f.grid.dims()));
   return f;
 }
@@ -533,7 +572,7 @@ void World::buildVolumes(const SceneDesc& scene, const IntersectorSpec& intersec
       info.source = source;
       const bool split = scene.dataPart.ranks > 1 && !desc.isosurfaces.empty();
       RankPart part;
-      VolumeFile file = split ? loadRankVolume(scene, v, part) : load ? load(v, desc) : loadVolume(desc);
+      VolumeFile file = split ? loadRankVolume(scene, v, scene.camera.frameScene ? nullptr : &m_camera, part) : load ? load(v, desc) : loadVolume(desc);
       if (split) {
         info.ownLo = part.own.cellLo, info.ownHi = part.own.cellHi;
         info.heldLo = part.held.cellLo, info.heldHi = part.held.cellHi;

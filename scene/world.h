@@ -18,6 +18,7 @@
 #include "scene/scene.h"
 #include "volume/iso_surface.h"
 #include "volume/packet_walk.h"
+#include "volume/partition.h"
 
 namespace iso {
 
@@ -318,6 +319,14 @@ CameraDesc frameBounds(const Vec3d& lower, const Vec3d& upper, double fov = 40);
 VolumeFile loadVolume(const VolumeDesc& desc);
 // A volume's placement from its description (origin, spacing, transform), after loading.
 void placeVolume(const VolumeDesc& desc, VolumeFile& volume);
+// The camera's rays through a 32 x 18 grid over the image, in volume v's index space, from which
+// a data-parallel render chooses the axes it cuts the volume along (partitionBricks): if both are
+// known before the volume's samples are read — `camera` is the scene file's or a glTF node's (null
+// when the camera frames the scene, which needs every volume's bounds) and the volume is a
+// procedural field, an array, or a file whose header says where its samples lie (raw, NRRD,
+// MetaImage, binary VTK, NIfTI) — else none (the longest axis is cut). `isotrace info --ranks`
+// uses the same rays.
+CutRays cameraCutRays(const SceneDesc& scene, const CameraDesc* camera, size_t v);
 // What a data-parallel render ("distribution": "data") cannot do yet, as an InputError naming the
 // place: queries the ranks would each answer for their own part only (colour by data, emissive or
 // clipped iso-surfaces, thin sheets' transmission, slices) and adaptive sampling.

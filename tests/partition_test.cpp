@@ -5,6 +5,8 @@
 
 #include <set>
 
+#include "scene/scene.h"
+#include "scene/world.h"
 #include "volume/bricks.h"
 #include "volume/input_error.h"
 #include "volume/loaders.h"
@@ -130,6 +132,100 @@ TEST(Partition, MoreRanksThanBricksIsRefused) {
   }
 }
 
+// Camera rays along `axis` through a grid over the volume's face, in index space.
+CutRays raysAlong(int axis, Vec3i dims) {
+  CutRays rays;
+  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  for (int i = 0; i < 16; ++i)
+    for (int j = 0; j < 16; ++j) {
+      Vec3d o, d{0, 0, 0};
+      o[axis] = -10;
+      o[u] = (i + 0.5) * (dims[u] - 1) / 16;
+      o[v] = (j + 0.5) * (dims[v] - 1) / 16;
+      d[axis] = 1;
+      rays.org.push_back(o);
+      rays.dir.push_back(d);
+    }
+  return rays;
+}
+
+TEST(Partition, TheCutIsWhereTheFewestCameraRaysPass) {
+  const Grid grid = readVolumeFile(test::dataPath("volumes/hydrogen_atom_128x128x128_uint8.raw"), {}, {}).grid;
+  const BrickGrid bricks(grid);  // 16^3 bricks: every axis as long
+  std::vector<double> weights(bricks.size(), 0.0);
+  for (uint32_t b : bricks.activeBricks(20.f)) weights[b] = 1;
+  std::vector<int> cuts;
+  partitionBricks(bricks, weights, 2, "hydrogen", nullptr, &cuts);
+  EXPECT_EQ(cuts, std::vector<int>{0}) << "without the camera, the longest (here the first) axis";
+  for (int axis = 0; axis < 3; ++axis) {
+    SCOPED_TRACE("camera rays along axis " + std::to_string(axis));
+    const CutRays camera = raysAlong(axis, grid.dims());
+    for (int ranks : {2, 3, 4}) {
+      const std::vector<RankBox> boxes = partitionBricks(bricks, weights, ranks, "hydrogen", &camera, &cuts);
+      ASSERT_EQ(boxes.size(), size_t(ranks));
+      ASSERT_EQ(cuts.size(), size_t(ranks - 1));
+      // Rays along the axis pass every cut across it: none is made there; the boxes still cover
+      // the volume and touch along the other axes.
+      for (int a : cuts) EXPECT_NE(a, axis);
+      size_t covered = 0;
+      for (const RankBox& box : boxes) {
+        covered += box.bricks;
+        EXPECT_EQ(box.brickLo[axis], 0);
+        EXPECT_EQ(box.brickHi[axis], bricks.count()[axis]);
+      }
+      EXPECT_EQ(covered, bricks.size());
+    }
+  }
+  // Rays that meet nothing leave the choice to the rays leaving the surfaces: a cut is still made.
+  CutRays away = raysAlong(0, grid.dims());
+  for (Vec3d& d : away.dir) d = -d;
+  EXPECT_EQ(partitionBricks(bricks, weights, 2, "hydrogen", &away, &cuts).size(), 2u);
+  EXPECT_EQ(cuts.size(), 1u);
+}
+
+TEST(Partition, CameraRaysAreInTheVolumesIndexSpace) {
+  const std::string text = R"({
+    "camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 30},
+    "film": {"width": 320, "height": 180},
+    "volumes": [{"procedural": {"field": "sphere", "resolution": [33, 33, 33]}, "isosurfaces": [{"value": 0.5}]},
+                {"file": "MHD", "isosurfaces": [{"value": 50}]},
+                {"file": "MHD", "spacing": [2, 2, 2], "isosurfaces": [{"value": 50}]},
+                {"file": "VDB", "isosurfaces": [{"value": 0.5}]}]
+  })";
+  std::string withFiles = text;
+  withFiles.replace(withFiles.find("MHD"), 3, test::dataPath("volumes/HeadMRVolume.mhd"));
+  withFiles.replace(withFiles.find("MHD"), 3, test::dataPath("volumes/HeadMRVolume.mhd"));
+  withFiles.replace(withFiles.find("VDB"), 3, test::dataPath("volumes/smoke.vdb"));
+  const SceneDesc scene = parseSceneText(withFiles, "inline.json");
+  const CutRays none = cameraCutRays(scene, nullptr, 0);
+  EXPECT_TRUE(none.org.empty()) << "no camera (the scene is framed): no rays";
+  const CutRays rays = cameraCutRays(scene, &scene.camera, 0);
+  ASSERT_EQ(rays.org.size(), 32u * 18u);
+  ASSERT_EQ(rays.dir.size(), rays.org.size());
+  // The field spans [-1, 1] in 32 cells: index = (world + 1) * 16.
+  for (const Vec3d& o : rays.org) {
+    EXPECT_NEAR(o.x, 16, 1e-9);
+    EXPECT_NEAR(o.y, 16, 1e-9);
+    EXPECT_NEAR(o.z, 80, 1e-9);
+  }
+  // The middle rays head for the grid's centre (index 16, 16, 16), within the grid's spacing.
+  const size_t middle = 9 * 32 + 16;
+  const Vec3d o = rays.org[middle], d = rays.dir[middle];
+  const double t = (16 - o.z) / d.z;
+  EXPECT_NEAR(o.x + t * d.x, 16, 1.0);
+  EXPECT_NEAR(o.y + t * d.y, 16, 1.0);
+  // A MetaImage's spacing from its header (4), or the scene's where it gives one (2).
+  for (size_t v : {size_t(1), size_t(2)}) {
+    const double spacing = v == 1 ? 4 : 2;
+    const CutRays file = cameraCutRays(scene, &scene.camera, v);
+    ASSERT_EQ(file.org.size(), 32u * 18u);
+    EXPECT_NEAR(file.org[0].z, 4 / spacing, 1e-9);
+    EXPECT_NEAR(length(file.dir[middle]) * spacing, 1, 1e-6);
+  }
+  // A file whose placement is known only once it is read (OpenVDB): none.
+  EXPECT_TRUE(cameraCutRays(scene, &scene.camera, 3).org.empty());
+}
+
 TEST(Partition, InfoShowsEachRanksBox) {
   const std::string scene = std::string(ISOTRACE_SOURCE_DIR) + "/examples/quick_look.json";
   const auto r = test::runIsotrace("info " + scene + " --ranks 3");
@@ -137,6 +233,7 @@ TEST(Partition, InfoShowsEachRanksBox) {
   for (const char* rank : {"volume 0, rank 0:", "volume 0, rank 1:", "volume 0, rank 2:"})
     EXPECT_NE(r.out.find(rank), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("the largest rank holds"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("volume 0: cut along "), std::string::npos) << r.out;
   for (const char* bad : {"--ranks 0", "--ranks x", "--ranks 100000"}) {
     const auto b = test::runIsotrace("info " + scene + " " + bad);
     EXPECT_EQ(b.status, 2) << bad;

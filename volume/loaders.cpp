@@ -171,6 +171,13 @@ std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayou
   return runsBrickRanges(*runs);
 }
 
+std::optional<FilePlacement> filePlacement(const std::string& path, const RawLayout& layout, const VolumePart& part) {
+  if (isDicomPath(path) || endsWith(lower(fs::path(path).filename().string()), ".vdb")) return std::nullopt;
+  const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time);
+  if (!runs) return std::nullopt;
+  return FilePlacement{runs->origin, runs->spacing, runs->toWorld};
+}
+
 void checkWindow(const SampleWindow& w, const Vec3i& dims, const std::string& file) {
   for (int a = 0; a < 3; ++a)
     if (w.first[a] < 0 || w.extent[a] < 2 || w.first[a] > dims[a] - w.extent[a])

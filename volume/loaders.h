@@ -66,6 +66,14 @@ void checkWindow(const SampleWindow& window, const Vec3i& dims, const std::strin
 // before it reads its window. For the files whose window readVolumeFile reads alone (above);
 // nullopt for any other (a pipe, another format or layout).
 std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
+// Where a file puts its samples (the origin, spacing and affine VolumeFile has after loading), from
+// its header alone: for the files whose samples lie in runs of bytes (raw, NRRD, MetaImage, binary
+// VTK, NIfTI); nullopt for any other (DICOM, OpenVDB, ASCII data, a pipe).
+struct FilePlacement {
+  Vec3d origin, spacing;
+  Transform toWorld;
+};
+std::optional<FilePlacement> filePlacement(const std::string& path, const RawLayout& layout = {}, const VolumePart& part = {});
 // The grid alone (tests, benchmarks): a file's placement other than origin and spacing is dropped.
 inline Grid loadVolumeFile(const std::string& path, const RawLayout& layout = {}) {
   return readVolumeFile(path, layout).grid;

@@ -26,10 +26,85 @@ struct Splitter {
   const std::vector<double>& weights;
   bool byCount;
   std::string where;
+  const CutRays* camera;  // (null: the longest axis is cut)
   std::vector<RankBox> out;
+  std::vector<int> cuts;  // the axis of each cut, in the order made
 
   double weightOf(uint32_t b) const { return byCount ? 1.0 : weights[b]; }
   uint32_t index(int x, int y, int z) const { return brickIndex(bricks, x, y, z); }
+
+  // The cut of bricks [lo, hi) along `axis` (bricks from lo[axis]) whose left side's weight is
+  // closest to its share (ranks / 2 of `ranks`), each side left a brick per rank; -1 if none.
+  int cutAlong(Vec3i lo, Vec3i hi, int axis, int ranks) const {
+    const Vec3i n{hi.x - lo.x, hi.y - lo.y, hi.z - lo.z};
+    const size_t count = size_t(n.x) * n.y * n.z;
+    std::vector<double> slab(size_t(n[axis]), 0.0);
+    for (int z = lo.z; z < hi.z; ++z)
+      for (int y = lo.y; y < hi.y; ++y)
+        for (int x = lo.x; x < hi.x; ++x) {
+          const int k = (axis == 0 ? x : axis == 1 ? y : z) - lo[axis];
+          slab[size_t(k)] += weightOf(index(x, y, z));
+        }
+    double total = 0;
+    for (double w : slab) total += w;
+    const int left = ranks / 2, right = ranks - left;
+    const size_t perSlab = count / size_t(n[axis]);
+    int best = -1;
+    double bestMiss = INFINITY, prefix = 0;
+    for (int s = 1; s < n[axis]; ++s) {
+      prefix += slab[size_t(s - 1)];
+      if (size_t(s) * perSlab < size_t(left) || size_t(n[axis] - s) * perSlab < size_t(right)) continue;
+      const double miss = std::fabs(prefix - total * double(left) / double(ranks));
+      if (miss < bestMiss) bestMiss = miss, best = s;
+    }
+    return best;
+  }
+
+  // What cutting bricks [lo, hi) before brick `at` on `axis` would send between the two sides,
+  // estimated: the fraction of the camera's sample rays that meet the box and pass the cut inside
+  // it, plus the fraction of rays from the centres of the box's weighted bricks (where rays leave
+  // the surfaces), 26 directions each, that pass it on their way out of the box.
+  double crossings(Vec3i lo, Vec3i hi, int axis, int at) const {
+    const Vec3d boxLo(bricks.cellBegin(index(lo.x, lo.y, lo.z)));
+    const Vec3d boxHi(bricks.cellEnd(index(hi.x - 1, hi.y - 1, hi.z - 1)));
+    const double plane = double(bricks.cellBegin(index(axis == 0 ? at : lo.x, axis == 1 ? at : lo.y, axis == 2 ? at : lo.z))[axis]);
+    auto passes = [&](const Vec3d& a, const Vec3d& b) { return (a[axis] < plane) != (b[axis] < plane); };
+    size_t met = 0, passed = 0;
+    for (size_t r = 0; r < camera->org.size(); ++r) {
+      double t0 = 0, t1 = INFINITY;
+      const Vec3d& o = camera->org[r];
+      const Vec3d& d = camera->dir[r];
+      if (!lineInBox(o, d, boxLo, boxHi, t0, t1) || !(t1 >= 0)) continue;
+      t0 = std::max(t0, 0.0);
+      ++met;
+      passed += passes(o + d * t0, o + d * t1);
+    }
+    // The weighted bricks of the box (every brick if none is), at most ~1024 of them, evenly.
+    std::vector<uint32_t> sources;
+    for (bool weighted : {true, false}) {
+      for (int z = lo.z; z < hi.z; ++z)
+        for (int y = lo.y; y < hi.y; ++y)
+          for (int x = lo.x; x < hi.x; ++x)
+            if (!weighted || weightOf(index(x, y, z)) > 0) sources.push_back(index(x, y, z));
+      if (!sources.empty()) break;
+    }
+    const size_t stride = (sources.size() + 1023) / 1024;
+    size_t left = 0, crossed = 0;
+    for (size_t i = 0; i < sources.size(); i += stride) {
+      const Vec3d c = (Vec3d(bricks.cellBegin(sources[i])) + Vec3d(bricks.cellEnd(sources[i]))) * 0.5;
+      for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            if (!dx && !dy && !dz) continue;
+            const Vec3d d{double(dx), double(dy), double(dz)};
+            double t0 = 0, t1 = INFINITY;
+            if (!lineInBox(c, d, boxLo, boxHi, t0, t1)) continue;
+            ++left;
+            crossed += passes(c, c + d * t1);
+          }
+    }
+    return (met ? double(passed) / double(met) : 0.0) + (left ? double(crossed) / double(left) : 0.0);
+  }
 
   void split(Vec3i lo, Vec3i hi, int ranks) {
     const Vec3i n{hi.x - lo.x, hi.y - lo.y, hi.z - lo.z};
@@ -49,33 +124,26 @@ struct Splitter {
     if (count < size_t(ranks))
       throw InputError(where, "", "has " + std::to_string(bricks.size()) + " bricks (of 8^3 cells): too few for " +
                                       std::to_string(ranks) + " more ranks in one of its boxes");
-    // The longest axis that can be cut; along it, the slabs' weights.
-    int axis = 0;
+    // Along each axis the cut closest to the weights' share; the axis cut is the longest, or,
+    // with sample rays, the one across whose cut the fewest of them pass.
+    int longest = 0;
     for (int a = 1; a < 3; ++a)
-      if (n[a] > n[axis]) axis = a;
-    std::vector<double> slab(size_t(n[axis]), 0.0);
-    for (int z = lo.z; z < hi.z; ++z)
-      for (int y = lo.y; y < hi.y; ++y)
-        for (int x = lo.x; x < hi.x; ++x) {
-          const int k = (axis == 0 ? x : axis == 1 ? y : z) - lo[axis];
-          slab[size_t(k)] += weightOf(index(x, y, z));
-        }
-    double total = 0;
-    for (double w : slab) total += w;
-    const int left = ranks / 2, right = ranks - left;
-    const size_t perSlab = count / size_t(n[axis]);
-    // The cut after slab s - 1 closest to the left's share, leaving each side a brick per rank.
-    int best = -1;
-    double bestMiss = INFINITY, prefix = 0;
-    for (int s = 1; s < n[axis]; ++s) {
-      prefix += slab[size_t(s - 1)];
-      if (size_t(s) * perSlab < size_t(left) || size_t(n[axis] - s) * perSlab < size_t(right)) continue;
-      const double miss = std::fabs(prefix - total * double(left) / double(ranks));
-      if (miss < bestMiss) bestMiss = miss, best = s;
+      if (n[a] > n[longest]) longest = a;
+    int axis = longest, best = cutAlong(lo, hi, longest, ranks);
+    if (camera && !camera->org.empty()) {
+      double cheapest = INFINITY;
+      for (int a : {longest, (longest + 1) % 3, (longest + 2) % 3}) {
+        const int cut = cutAlong(lo, hi, a, ranks);
+        if (cut < 0) continue;
+        const double cost = crossings(lo, hi, a, lo[a] + cut);
+        if (cost < cheapest) cheapest = cost, axis = a, best = cut;
+      }
     }
     if (best < 0)
       throw InputError(where, "", "cannot be cut into " + std::to_string(ranks) + " boxes of whole bricks along its longest axis (" +
                                       std::to_string(n[axis]) + " bricks)");
+    cuts.push_back(axis);
+    const int left = ranks / 2, right = ranks - left;
     Vec3i mid = hi;
     mid[axis] = lo[axis] + best;
     split(lo, mid, left);
@@ -88,13 +156,14 @@ struct Splitter {
 }  // namespace
 
 std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<double>& weights, int ranks,
-                                     const std::string& where) {
+                                     const std::string& where, const CutRays* camera, std::vector<int>* cutAxes) {
   if (ranks < 1) throw InputError(where, "", "needs at least one rank");
   if (weights.size() != bricks.size()) throw InputError(where, "", "one weight per brick is needed");
   double total = 0;
   for (double w : weights) total += w;
-  Splitter s{bricks, weights, !(total > 0), where, {}};
+  Splitter s{bricks, weights, !(total > 0), where, camera, {}, {}};
   s.split({0, 0, 0}, bricks.count(), ranks);
+  if (cutAxes) *cutAxes = s.cuts;
   return s.out;
 }
 

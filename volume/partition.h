@@ -28,11 +28,24 @@ struct RankBox {
   }
 };
 
+// Sample rays of the camera in the volume's index space (cell (i, j, k) at (i, j, k)): where
+// they pass, rays go between the ranks' boxes (cameraCutRays in scene/world.h makes them).
+struct CutRays {
+  std::vector<Vec3d> org, dir;
+};
+
 // `weights`: one per brick of `bricks` (e.g. 1 for a brick active for some iso-surface); all 0:
 // the boxes are balanced by brick count. `ranks` boxes, every brick in exactly one; an
 // InputError (naming `where`) if the volume has fewer bricks than ranks along the cuts.
+// Each cut is the one along its axis closest to the weights' share; the axis is the box's
+// longest, or with `camera` the one whose cut the fewest sample rays pass: of the camera's rays,
+// and of rays in 26 directions from the centres of the weighted bricks (standing for the rays
+// that leave the surfaces), each counted as a fraction of its kind. Every ray that passes a cut
+// between two ranks' boxes is one a rank may have to ask the other about. `cutAxes`: the axis of
+// each cut, in the order made (for `isotrace info`).
 std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<double>& weights, int ranks,
-                                     const std::string& where);
+                                     const std::string& where, const CutRays* camera = nullptr,
+                                     std::vector<int>* cutAxes = nullptr);
 
 // What a rank holds of the volume when it may also hold copies of other ranks' bricks ("replicate":
 // a fraction of the volume's bricks, 0 to 1): its box grown by the most layers of bricks on every

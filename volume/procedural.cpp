@@ -47,12 +47,13 @@ double evalField(Field field, const Vec3d& p) {
   return 0;
 }
 
+Vec3d proceduralSpacing(Vec3i n) { return {2.0 / (n.x - 1), 2.0 / (n.y - 1), 2.0 / (n.z - 1)}; }
+
 namespace {
-Vec3d spacingOf(Vec3i n) { return {2.0 / (n.x - 1), 2.0 / (n.y - 1), 2.0 / (n.z - 1)}; }
 
 // Samples [first, first + extent) into `out` (x fastest), layers in parallel.
 void sampleBox(Field field, Vec3i n, Vec3i first, Vec3i extent, float* out) {
-  const Vec3d s = spacingOf(n);
+  const Vec3d s = proceduralSpacing(n);
   tbb::parallel_for(0, extent.z, [&](int k) {
     const int z = first.z + k;
     float* v = out + size_t(k) * size_t(extent.y) * size_t(extent.x);
@@ -66,13 +67,13 @@ void sampleBox(Field field, Vec3i n, Vec3i first, Vec3i extent, float* out) {
 Grid makeProceduralGrid(Field field, Vec3i n) {
   std::vector<float> v(size_t(n.x) * n.y * n.z);
   sampleBox(field, n, {0, 0, 0}, n, v.data());
-  return Grid(n, std::move(v), {-1, -1, -1}, spacingOf(n));
+  return Grid(n, std::move(v), {-1, -1, -1}, proceduralSpacing(n));
 }
 
 Grid makeProceduralWindow(Field field, Vec3i n, Vec3i first, Vec3i extent) {
   std::shared_ptr<float[]> v(new float[size_t(extent.x) * extent.y * extent.z]);
   sampleBox(field, n, first, extent, v.get());
-  return Grid(n, ScalarType::Float32, std::shared_ptr<const void>(v, v.get()), first, extent, {-1, -1, -1}, spacingOf(n));
+  return Grid(n, ScalarType::Float32, std::shared_ptr<const void>(v, v.get()), first, extent, {-1, -1, -1}, proceduralSpacing(n));
 }
 
 BrickGrid proceduralBrickRanges(Field field, Vec3i n) {
