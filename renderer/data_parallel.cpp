@@ -7,6 +7,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cstdio>
 #include <cstddef>
 #include <cstdlib>
@@ -16,6 +17,7 @@
 #include <string>
 #include <type_traits>
 
+#include "renderer/ask_filter.h"
 #include "renderer/distributed.h"
 #include "renderer/mpi_messages.h"
 #include "renderer/wavefront.h"
@@ -94,14 +96,40 @@ class RankTracer {
     parallel(b.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, b, u, u + 1, s); });
     // The rays each rank is asked about (with their ends), then each message written at once.
     for (std::vector<Selected>& list : m_selected) list.clear();
-    for (size_t i = 0; m_asksAny && i < n; ++i) {
-      if (b.shadow && b.found[i]) continue;
-      const Ray& ray = b.rays[i];
-      float tfar = ray.tfar;
-      if (!b.shadow && b.found[i]) {
-        const float reach = float(2 * m_cell / double(length(ray.dir)));
-        tfar = std::min(tfar, nextFloatUp(b.hits[i].t + reach) * (1 + 1e-6f));
+    if (m_asksAny) {
+      // Each ray's segment (as arrays for the float test), then the float test for every volume
+      // (filterAsks), the double one for the rays it leaves open.
+      m_segments.resize(n);
+      for (size_t i = 0; i < n; ++i) {
+        const Ray& ray = b.rays[i];
+        float tfar = ray.tfar;
+        if (!b.shadow && b.found[i]) {
+          const float reach = float(2 * m_cell / double(length(ray.dir)));
+          tfar = std::min(tfar, nextFloatUp(b.hits[i].t + reach) * (1 + 1e-6f));
+        }
+        const Vec3f o = ray.org64 ? Vec3f(*ray.org64) : ray.org;
+        m_segments.ox[i] = o.x;
+        m_segments.oy[i] = o.y;
+        m_segments.oz[i] = o.z;
+        m_segments.dx[i] = ray.dir.x;
+        m_segments.dy[i] = ray.dir.y;
+        m_segments.dz[i] = ray.dir.z;
+        m_segments.t0[i] = ray.tnear;
+        m_segments.t1[i] = tfar;
       }
+      m_settled.assign(n, 1);
+      for (const SplitVolume& v : m_volumes) {
+        if (v.holdsAll) continue;
+        if (v.world)
+          filterAsks(m_segments, n, v.filter, m_settled.data());
+        else
+          std::fill(m_settled.begin(), m_settled.end(), 0);
+      }
+    }
+    for (size_t i = 0; m_asksAny && i < n; ++i) {
+      if (m_settled[i] || (b.shadow && b.found[i])) continue;
+      const Ray& ray = b.rays[i];
+      const float tfar = m_segments.t1[i];
       if (!whomToAsk(ray, tfar, m_ask)) continue;
       const bool whole = !isShort(ray);
       for (int q = 0; q < m_ranks; ++q)
@@ -533,6 +561,7 @@ class RankTracer {
     // everywhere: then it asks nobody about this volume.
     Box heldHere;
     bool holdsAll = false;
+    AskFilterVolume filter;  // (world query space only) the float test's boxes and pad
 
     // `cells`: by rank, the own box's cells [lo, hi) and the held box's.
     SplitVolume(const VolumeInfo& vol, const std::vector<Vec3i>& cells, int rank) {
@@ -567,6 +596,25 @@ class RankTracer {
       const Vec3i heldLo = cells[size_t(4 * rank + 2)], heldHi = cells[size_t(4 * rank + 3)];
       heldHere = box(heldLo, heldHi, true);
       holdsAll = heldLo == Vec3i{0, 0, 0} && heldHi == last;
+      // The float test's boxes: rounded to contain the other ranks' boxes, to lie in the held one
+      // (its open sides +-FLT_MAX); its pad (twice over in filterAsks) as segment() makes it.
+      auto rounded = [](const Box& b, bool outwards) {
+        AskFilterBox f;
+        for (int a = 0; a < 3; ++a) {
+          float lo = float(std::clamp(b.lo[a], -double(FLT_MAX), double(FLT_MAX)));
+          float hi = float(std::clamp(b.hi[a], -double(FLT_MAX), double(FLT_MAX)));
+          if (outwards ? double(lo) > b.lo[a] : double(lo) < b.lo[a]) lo = outwards ? nextFloatDown(lo) : nextFloatUp(lo);
+          if (outwards ? double(hi) < b.hi[a] : double(hi) > b.hi[a]) hi = outwards ? nextFloatUp(hi) : nextFloatDown(hi);
+          f.lo[a] = lo;
+          f.hi[a] = hi;
+        }
+        return f;
+      };
+      filter.held = rounded(heldHere, false);
+      for (size_t q = 0; q < own.size(); ++q)
+        if (int(q) != rank) filter.others.push_back(rounded(own[q], true));
+      filter.padPerReach = float(1e-5 * stretch);
+      filter.padFixed = float(1e-5 * scale * stretch + 1e-4 * cell);
     }
 
     Segment segment(const Ray& r, float tfar) const {
@@ -594,6 +642,8 @@ class RankTracer {
   };
   std::vector<std::vector<Selected>> m_selected;  // by rank: the rays of the stage being asked
   std::vector<char> m_ask;                         // by rank: whether a ray is asked of it (whomToAsk)
+  AskFilterRays m_segments;              // a stage's rays' segments, for filterAsks
+  std::vector<unsigned char> m_settled;  // by ray: filterAsks found it asked of nobody
   std::vector<char> m_inbox;               // the message being read (an ask or an answer)
   // An ask's rays as this rank traces them, their indices in the asker's flight, what they found.
   std::vector<Ray> m_rays;

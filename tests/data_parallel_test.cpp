@@ -9,6 +9,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -16,6 +17,7 @@
 #include <random>
 
 #include "accuracy/watertight.h"
+#include "renderer/ask_filter.h"
 #include "scene/world.h"
 #include "volume/bricks.h"
 #include "volume/input_error.h"
@@ -676,6 +678,61 @@ TEST(DataParallel, TheClosestOfTheRanksHitsIsTheWholeVolumesHit) {
       EXPECT_GT(hits, 10000u);  // the chains cross the surfaces and the seams many times
     }
   }
+}
+
+// The float test before the double one of whom a rank asks about a ray (renderer/ask_filter.h):
+// every ray it calls settled has its segment in the held box, or outside every other box, by a
+// test in double with the pad it stands for; and it settles most of the rays that are.
+TEST(DataParallel, TheAskFilterSettlesOnlyRaysNobodyIsAsked) {
+  // A volume of 64^3 units at 1e3 from the origin, cut across y at 1032: this rank holds y < 1040
+  // (its box and a layer of copies), the other's box is y >= 1032.
+  const double lo = 1000, hi = 1064, cut = 1032, held = 1040;
+  AskFilterVolume v;
+  v.held = {{-FLT_MAX, -FLT_MAX, -FLT_MAX}, {FLT_MAX, float(held), FLT_MAX}};
+  v.others.push_back({{float(lo), float(cut), float(lo)}, {float(hi), float(hi), float(hi)}});
+  const double padPerReach = 1e-5, padFixed = 1e-5 * hi + 1e-4;
+  v.padPerReach = float(padPerReach);
+  v.padFixed = float(padFixed);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0, 1);
+  const size_t n = 20000;
+  AskFilterRays rays;
+  rays.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    // Origins around the volume and on the planes themselves, directions of every kind, ends
+    // short, long, at the planes and unbounded.
+    Vec3f o{float(lo - 20 + 104 * u(rng)), float(lo - 20 + 104 * u(rng)), float(lo - 20 + 104 * u(rng))};
+    if (i % 7 == 0) o.y = float(i % 2 ? cut : held);
+    Vec3f d = normalize(Vec3f{float(u(rng) - 0.5), float(u(rng) - 0.5), float(u(rng) - 0.5)});
+    if (i % 11 == 0) d.y = 0;
+    const float t1 = i % 5 == 0 ? 3.4e38f : float(200 * u(rng) * u(rng));
+    rays.ox[i] = o.x, rays.oy[i] = o.y, rays.oz[i] = o.z;
+    rays.dx[i] = d.x, rays.dy[i] = d.y, rays.dz[i] = d.z;
+    rays.t0[i] = 0, rays.t1[i] = t1;
+  }
+  std::vector<unsigned char> settled(n, 1);
+  filterAsks(rays, n, v, settled.data());
+  size_t settledCount = 0, nobody = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const Vec3d o{rays.ox[i], rays.oy[i], rays.oz[i]}, d{rays.dx[i], rays.dy[i], rays.dz[i]};
+    const double t0 = rays.t0[i], t1 = rays.t1[i];
+    const double reach = std::max({std::fabs(o.x), std::fabs(o.y), std::fabs(o.z)});
+    const double pad = padPerReach * 2 * reach + padFixed;
+    const Vec3d p0 = o + d * t0, p1 = o + d * t1;
+    // (The held box is open on x and z: the volume ends there, so nothing lies beyond.)
+    const bool inHeld = p0.y <= held - pad && p1.y <= held - pad;
+    double a0 = -INFINITY, a1 = INFINITY;
+    const bool meets = lineInBox(o, d, Vec3d{lo - pad, cut - pad, lo - pad}, Vec3d{hi + pad, hi + pad, hi + pad}, a0, a1) &&
+                       std::max(a0, t0) <= std::min(a1, t1);
+    const bool askedOfNobody = inHeld || !meets;
+    nobody += askedOfNobody;
+    if (settled[i]) {
+      ++settledCount;
+      EXPECT_TRUE(askedOfNobody) << "ray " << i << " settled but reaches the other box";
+    }
+  }
+  EXPECT_GT(settledCount, nobody * 8 / 10) << "the filter should settle most rays asked of nobody";
+  EXPECT_LT(settledCount, n);
 }
 
 }  // namespace
