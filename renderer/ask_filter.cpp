@@ -20,8 +20,11 @@ typedef int32_t I8 __attribute__((vector_size(32)));
 }  // namespace
 
 void AskFilterRays::resize(size_t n) {
+  // (Only ever grown: the arrays are reused from stage to stage, and growing them again after a
+  // smaller stage would zero the new part each time.)
   const size_t padded = (n + 7) / 8 * 8;
-  for (std::vector<float>* v : {&ox, &oy, &oz, &dx, &dy, &dz, &t0, &t1}) v->resize(padded);
+  for (std::vector<float>* v : {&ox, &oy, &oz, &dx, &dy, &dz, &t0, &t1})
+    if (v->size() < padded) v->resize(padded);
 }
 
 __attribute__((target_clones("avx2", "default")))

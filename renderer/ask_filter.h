@@ -27,6 +27,7 @@ struct AskFilterVolume {
 // Rays as arrays (structure of arrays), each padded to a multiple of 8.
 struct AskFilterRays {
   std::vector<float> ox, oy, oz, dx, dy, dz, t0, t1;
+  // Room for n rays (at least; the arrays never shrink).
   void resize(size_t n);
 };
 
