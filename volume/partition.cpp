@@ -60,11 +60,29 @@ struct Splitter {
     return best;
   }
 
+  // The centres of the box's weighted bricks (every brick's if none is), at most ~1024 of them,
+  // evenly: where the rays leaving the surfaces start (crossings).
+  std::vector<Vec3d> sourcesIn(Vec3i lo, Vec3i hi) const {
+    std::vector<uint32_t> bricksIn;
+    for (bool weighted : {true, false}) {
+      for (int z = lo.z; z < hi.z; ++z)
+        for (int y = lo.y; y < hi.y; ++y)
+          for (int x = lo.x; x < hi.x; ++x)
+            if (!weighted || weightOf(index(x, y, z)) > 0) bricksIn.push_back(index(x, y, z));
+      if (!bricksIn.empty()) break;
+    }
+    std::vector<Vec3d> centres;
+    const size_t stride = (bricksIn.size() + 1023) / 1024;
+    for (size_t i = 0; i < bricksIn.size(); i += stride)
+      centres.push_back((Vec3d(bricks.cellBegin(bricksIn[i])) + Vec3d(bricks.cellEnd(bricksIn[i]))) * 0.5);
+    return centres;
+  }
+
   // What cutting bricks [lo, hi) before brick `at` on `axis` would send between the two sides,
   // estimated: the fraction of the camera's sample rays that meet the box and pass the cut inside
-  // it, plus the fraction of rays from the centres of the box's weighted bricks (where rays leave
-  // the surfaces), 26 directions each, that pass it on their way out of the box.
-  double crossings(Vec3i lo, Vec3i hi, int axis, int at) const {
+  // it, plus the fraction of rays from `sources` (sourcesIn), 26 directions each, that pass it on
+  // their way out of the box.
+  double crossings(Vec3i lo, Vec3i hi, int axis, int at, const std::vector<Vec3d>& sources) const {
     const Vec3d boxLo(bricks.cellBegin(index(lo.x, lo.y, lo.z)));
     const Vec3d boxHi(bricks.cellEnd(index(hi.x - 1, hi.y - 1, hi.z - 1)));
     const double plane = double(bricks.cellBegin(index(axis == 0 ? at : lo.x, axis == 1 ? at : lo.y, axis == 2 ? at : lo.z))[axis]);
@@ -79,19 +97,8 @@ struct Splitter {
       ++met;
       passed += passes(o + d * t0, o + d * t1);
     }
-    // The weighted bricks of the box (every brick if none is), at most ~1024 of them, evenly.
-    std::vector<uint32_t> sources;
-    for (bool weighted : {true, false}) {
-      for (int z = lo.z; z < hi.z; ++z)
-        for (int y = lo.y; y < hi.y; ++y)
-          for (int x = lo.x; x < hi.x; ++x)
-            if (!weighted || weightOf(index(x, y, z)) > 0) sources.push_back(index(x, y, z));
-      if (!sources.empty()) break;
-    }
-    const size_t stride = (sources.size() + 1023) / 1024;
     size_t left = 0, crossed = 0;
-    for (size_t i = 0; i < sources.size(); i += stride) {
-      const Vec3d c = (Vec3d(bricks.cellBegin(sources[i])) + Vec3d(bricks.cellEnd(sources[i]))) * 0.5;
+    for (const Vec3d& c : sources) {
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
           for (int dx = -1; dx <= 1; ++dx) {
@@ -131,11 +138,12 @@ struct Splitter {
       if (n[a] > n[longest]) longest = a;
     int axis = longest, best = cutAlong(lo, hi, longest, ranks);
     if (camera && !camera->org.empty()) {
+      const std::vector<Vec3d> sources = sourcesIn(lo, hi);
       double cheapest = INFINITY;
       for (int a : {longest, (longest + 1) % 3, (longest + 2) % 3}) {
         const int cut = cutAlong(lo, hi, a, ranks);
         if (cut < 0) continue;
-        const double cost = crossings(lo, hi, a, lo[a] + cut);
+        const double cost = crossings(lo, hi, a, lo[a] + cut, sources);
         if (cost < cheapest) cheapest = cost, axis = a, best = cut;
       }
     }
