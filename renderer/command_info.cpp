@@ -40,8 +40,9 @@ const char* lightKindName(Light::Kind k) {
 // rank's box of whole bricks, balanced by the bricks active for the volume's iso-surfaces, and
 // what the rank would hold of it (with "replicate", its box and the copies of its neighbours'
 // bricks around it).
-void printPartition(const World& world, const SceneDesc& scene, int ranks, double replicate) {
+void printPartition(const World& world, const SceneDesc& scene, int ranks) {
   const std::string& path = scene.path;
+  const double replicate = scene.settings.replicate;
   std::printf("  data-parallel over %d ranks (render --data-parallel): each holds only its box of each volume "
               "(files and procedural fields are read only for it, OpenVDB and multi-frame DICOM files too; ASCII data whole, then cut); meshes, lights "
               "and the camera on every rank\n", ranks);
@@ -206,7 +207,7 @@ int info(const std::string& path, const SceneOverrides& overrides, int ranks) {
     std::printf("    %d %s%s\n", count, kind.c_str(),
                 kind.rfind("area", 0) == 0 ? (", " + std::to_string(areaTriangles) + " triangles").c_str() : "");
   if (world.environmentLights().empty()) skipped.push_back("no environment light: escaped rays are black");
-  if (ranks > 0) printPartition(world, scene, ranks, scene.settings.replicate);
+  if (ranks > 0) printPartition(world, scene, ranks);
   for (const std::string& line : skipped) std::printf("  skipped: %s\n", line.c_str());
   std::printf("  time: load %.2fs, build %.2fs\n", world.loadSeconds(), world.buildSeconds());
   return 0;

@@ -566,8 +566,7 @@ class RankTracer {
     // `cells`: by rank, the own box's cells [lo, hi) and the held box's.
     SplitVolume(const VolumeInfo& vol, const std::vector<Vec3i>& cells, int rank) {
       const Grid& g = *vol.grid;
-      const Vec3d inv{1 / g.spacing().x, 1 / g.spacing().y, 1 / g.spacing().z};
-      toIndex = Transform::scale(inv) * Transform::translate(-g.origin()) * vol.toObject;
+      toIndex = worldToIndex(g.origin(), g.spacing(), vol.toObject);
       world = true;
       for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) world = world && (i == j || toIndex.m[i][j] == 0);

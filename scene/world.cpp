@@ -55,10 +55,22 @@ VolumeFile loadVolume(const VolumeDesc& desc) {
   return v;
 }
 
+namespace {
+// The scene's keys applied to a file's placement: "origin" and "spacing" replace the file's,
+// "transform" comes after its affine.
+FilePlacement placed(const VolumeDesc& desc, FilePlacement p) {
+  if (desc.origin) p.origin = *desc.origin;
+  if (desc.spacing) p.spacing = *desc.spacing;
+  p.toWorld = desc.transform * p.toWorld;
+  return p;
+}
+}  // namespace
+
 void placeVolume(const VolumeDesc& desc, VolumeFile& v) {
-  if (desc.origin) v.grid.setOrigin(*desc.origin);
-  if (desc.spacing) v.grid.setSpacing(*desc.spacing);
-  v.toWorld = desc.transform * v.toWorld;
+  const FilePlacement p = placed(desc, {v.grid.origin(), v.grid.spacing(), v.toWorld});
+  v.grid.setOrigin(p.origin);
+  v.grid.setSpacing(p.spacing);
+  v.toWorld = p.toWorld;
 }
 
 namespace {
@@ -468,27 +480,17 @@ CutRays cameraCutRays(const SceneDesc& scene, const CameraDesc* camera, size_t v
   CutRays rays;
   const VolumeDesc& desc = scene.volumes[v];
   if (!camera) return rays;
-  Vec3d origin{0, 0, 0}, spacing{1, 1, 1};
-  Transform toWorld;  // (the file's affine)
-  if (desc.array) {
-    origin = desc.array->origin();
-    spacing = desc.array->spacing();
-  } else if (desc.field) {
-    origin = {-1, -1, -1};
-    spacing = proceduralSpacing(desc.resolution);
-  } else if (const std::optional<FilePlacement> file = filePlacement(desc.file, desc.layout, desc.part)) {
-    origin = file->origin;
-    spacing = file->spacing;
-    toWorld = file->toWorld;
-  } else {
-    return rays;
-  }
-  if (desc.origin) origin = *desc.origin;
-  if (desc.spacing) spacing = *desc.spacing;
-  toWorld = desc.transform * toWorld;
-  if (!toWorld.isFiniteInvertible() || !(spacing.x > 0 && spacing.y > 0 && spacing.z > 0)) return rays;
-  const Transform toIndex = Transform::scale({1 / spacing.x, 1 / spacing.y, 1 / spacing.z}) *
-                            Transform::translate(-origin) * toWorld.inverse();
+  std::optional<FilePlacement> file;  // (before the scene's keys)
+  if (desc.array)
+    file = FilePlacement{desc.array->origin(), desc.array->spacing(), Transform()};
+  else if (desc.field)
+    file = FilePlacement{{-1, -1, -1}, proceduralSpacing(desc.resolution), Transform()};
+  else
+    file = filePlacement(desc.file, desc.layout, desc.part);
+  if (!file) return rays;
+  const FilePlacement p = placed(desc, *file);
+  if (!p.toWorld.isFiniteInvertible() || !(p.spacing.x > 0 && p.spacing.y > 0 && p.spacing.z > 0)) return rays;
+  const Transform toIndex = worldToIndex(p.origin, p.spacing, p.toWorld.inverse());
   const int w = std::max(scene.settings.width, 1), h = std::max(scene.settings.height, 1);
   const Camera eye(*camera, w, h);
   constexpr int kAcross = 32, kDown = 18;

@@ -172,7 +172,6 @@ std::optional<BrickGrid> fileBrickRanges(const std::string& path, const RawLayou
 }
 
 std::optional<FilePlacement> filePlacement(const std::string& path, const RawLayout& layout, const VolumePart& part) {
-  if (isDicomPath(path) || endsWith(lower(fs::path(path).filename().string()), ".vdb")) return std::nullopt;
   const std::optional<SampleRuns> runs = sampleRunsOf(path, layout, part.time);
   if (!runs) return std::nullopt;
   return FilePlacement{runs->origin, runs->spacing, runs->toWorld};

@@ -136,7 +136,7 @@ struct Splitter {
     int longest = 0;
     for (int a = 1; a < 3; ++a)
       if (n[a] > n[longest]) longest = a;
-    int axis = longest, best = cutAlong(lo, hi, longest, ranks);
+    int axis = longest, best = -1;
     if (camera && !camera->org.empty()) {
       const std::vector<Vec3d> sources = sourcesIn(lo, hi);
       double cheapest = INFINITY;
@@ -146,6 +146,8 @@ struct Splitter {
         const double cost = crossings(lo, hi, a, lo[a] + cut, sources);
         if (cost < cheapest) cheapest = cost, axis = a, best = cut;
       }
+    } else {
+      best = cutAlong(lo, hi, longest, ranks);
     }
     if (best < 0)
       throw InputError(where, "", "cannot be cut into " + std::to_string(ranks) + " boxes of whole bricks along its longest axis (" +

@@ -118,4 +118,11 @@ class Transform {
   double m[3][4] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}};
 };
 
+// World space to a grid's index space (sample (i, j, k) at (i, j, k)), for a grid whose sample
+// (i, j, k) lies at origin + (i, j, k) * spacing in its own space, and `toObject` taking world
+// points to that space.
+inline Transform worldToIndex(const Vec3d& origin, const Vec3d& spacing, const Transform& toObject) {
+  return Transform::scale({1 / spacing.x, 1 / spacing.y, 1 / spacing.z}) * Transform::translate(-origin) * toObject;
+}
+
 }  // namespace iso
