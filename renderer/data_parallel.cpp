@@ -126,15 +126,20 @@ class RankTracer {
           std::fill(m_settled.begin(), m_settled.end(), 0);
       }
     }
+    // (Camera rays go in packets, the 4x2 pixels of one sample: the rays asked of a rank from one
+    // packet are traced there as a packet too. `packet`: ray i's.)
+    const bool packets = !b.packetEnds.empty();
+    uint32_t packet = 0;
     for (size_t i = 0; m_asksAny && i < n; ++i) {
       if (m_settled[i] || (b.shadow && b.found[i])) continue;
       const Ray& ray = b.rays[i];
       const float tfar = m_segments.t1[i];
       if (!whomToAsk(ray, tfar, m_ask)) continue;
       const bool whole = !isShort(ray);
+      while (packets && i >= b.packetEnds[packet]) ++packet;
       for (int q = 0; q < m_ranks; ++q)
         if (m_ask[size_t(q)]) {
-          m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole});
+          m_selected[size_t(q)].push_back({uint32_t(i), tfar, whole, packet});
           m_ask[size_t(q)] = 0;
         }
     }
@@ -149,14 +154,16 @@ class RankTracer {
       std::vector<char> bytes(size);
       std::memcpy(bytes.data(), &header, sizeof(AskHeader));
       char* at = bytes.data() + sizeof(AskHeader);
-      for (const Selected& sel : list) {
+      for (size_t k = 0; k < list.size(); ++k) {
+        const Selected& sel = list[k];
         const Ray& ray = b.rays[sel.index];
         if (!sel.whole) {
-          const AskedShort a{int32_t(sel.index), 0, ray.org, ray.dir, ray.tnear, sel.tfar};
+          const bool starts = packets && (k == 0 || sel.packet != list[k - 1].packet);
+          const AskedShort a{int32_t(sel.index), starts ? kPacketStart : 0, ray.org, ray.dir, ray.tnear, sel.tfar};
           std::memcpy(at, &a, sizeof a);
           at += sizeof a;
         } else {
-          AskedWhole a{int32_t(sel.index), 1, ray};
+          AskedWhole a{int32_t(sel.index), kWhole, ray};
           a.ray.tfar = sel.tfar;
           std::memcpy(at, static_cast<const void*>(&a), sizeof a);
           at += sizeof a;
@@ -322,16 +329,19 @@ class RankTracer {
   // A ray sent to another rank, with its index in this rank's flight: most rays (from the camera
   // or a triangle: isShort) as their origin, direction and extent alone, 40 bytes, the rest of
   // them a default Ray's; the others (leaving an iso-surface, with their origin in double and
-  // their start class) whole, 112 bytes.
+  // their start class) whole, 112 bytes. A camera packet's rays asked of a rank go one after
+  // another, the first flagged kPacketStart: the rank traces them as a packet, as the asker does
+  // (World::intersectPacket, the same hits as one at a time, faster).
   struct AskedShort {
     int32_t index;
-    int32_t whole;  // 0: this; 1: an AskedWhole
+    int32_t flags;  // kWhole: an AskedWhole, not this; kPacketStart: the first ray asked of a camera packet
     Vec3f org, dir;
     float tnear, tfar;
   };
+  static constexpr int32_t kWhole = 1, kPacketStart = 2;
   struct AskedWhole {
     int32_t index;
-    int32_t whole;
+    int32_t flags;
     Ray ray;
   };
   static bool isShort(const Ray& r) {
@@ -374,48 +384,58 @@ class RankTracer {
     const std::vector<char>& bytes = m_inbox;
     if (bytes.size() < sizeof(AskHeader)) MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
     const AskHeader header = read<AskHeader>(bytes, 0);
-    // The rays, as this rank traces them (the arrays reused from ask to ask).
-    m_rays.clear();
+    // The rays, as this rank traces them (the batch reused from ask to ask), camera rays in the
+    // packets they were asked from (each begun by a kPacketStart ray), as the asker traces them.
+    RayBatch& batch = m_answering;
+    batch.shadow = header.shadow != 0;
+    batch.rays.clear();
+    batch.packetEnds.clear();
     m_indices.clear();
     for (size_t at = sizeof(AskHeader); at < bytes.size();) {
       if (bytes.size() - at < sizeof(AskedShort)) MPI_Abort(MPI_COMM_WORLD, 1);
       const AskedShort a = read<AskedShort>(bytes, at);
+      const bool packed = (a.flags & kPacketStart) || !batch.packetEnds.empty();
+      if ((a.flags & ~(kWhole | kPacketStart)) || ((a.flags & kWhole) && packed) || (packed && batch.shadow) ||
+          (packed && batch.packetEnds.empty() && !batch.rays.empty()))
+        MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
+      if (packed) {
+        if (a.flags & kPacketStart) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
+        if (batch.rays.size() - batch.packetEnds.back() >= size_t(World::kPacket)) MPI_Abort(MPI_COMM_WORLD, 1);
+      }
       m_indices.push_back(a.index);
-      if (a.whole) {
+      if (a.flags & kWhole) {
         if (bytes.size() - at < sizeof(AskedWhole)) MPI_Abort(MPI_COMM_WORLD, 1);
-        m_rays.push_back(read<AskedWhole>(bytes, at).ray);
+        batch.rays.push_back(read<AskedWhole>(bytes, at).ray);
         at += sizeof(AskedWhole);
       } else {
-        Ray& r = m_rays.emplace_back();
+        Ray& r = batch.rays.emplace_back();
         r.org = a.org;
         r.dir = a.dir;
         r.tnear = a.tnear;
         r.tfar = a.tfar;
         at += sizeof(AskedShort);
       }
-      m_rays.back().mask = World::kVolumeMask;
+      batch.rays.back().mask = World::kVolumeMask;
     }
-    const size_t n = m_rays.size();
+    // (packetEnds held each packet's start so far: each its end, as RayBatch has them.)
+    if (!batch.packetEnds.empty()) {
+      batch.packetEnds.erase(batch.packetEnds.begin());
+      batch.packetEnds.push_back(uint32_t(batch.rays.size()));
+    }
+    const size_t n = batch.size();
     raysReceived += double(n);
-    if (m_hits.size() < n) {
-      m_hits.resize(n);
-      m_found.resize(n);
-    }
-    if (header.shadow) {
-      parallel(n, stats, [&](size_t k, TraversalStats& s) { m_found[k] = m_world.occluded(m_rays[k], s); });
-    } else {
-      parallel(n, stats, [&](size_t k, TraversalStats& s) { m_found[k] = m_world.intersect(m_rays[k], m_hits[k], s); });
-    }
+    batch.prepareResults();
+    parallel(batch.units(), stats, [&](size_t u, TraversalStats& s) { traceBatch(m_world, batch, u, u + 1, s); });
     // The hits found with the index of the ray in the asker's flight (a shadow ray: the index
     // alone, of the rays found blocked).
     std::vector<char> back;
     append(back, header);
     for (size_t k = 0; k < n; ++k) {
-      if (!m_found[k]) continue;
+      if (!batch.found[k]) continue;
       if (header.shadow) {
         append(back, m_indices[k]);
       } else {
-        const Hit& h = m_hits[k];
+        const Hit& h = batch.hits[k];
         if (h.surface < 0 || h.mesh >= 0) MPI_Abort(MPI_COMM_WORLD, 1);  // (the mask lets only iso-surfaces through)
         append(back, FoundIso::of(h, m_indices[k]));
       }
@@ -638,17 +658,16 @@ class RankTracer {
     uint32_t index;
     float tfar;
     bool whole;
+    uint32_t packet;  // (a camera stage's) the ray's packet
   };
   std::vector<std::vector<Selected>> m_selected;  // by rank: the rays of the stage being asked
   std::vector<char> m_ask;                         // by rank: whether a ray is asked of it (whomToAsk)
   AskFilterRays m_segments;              // a stage's rays' segments, for filterAsks
   std::vector<unsigned char> m_settled;  // by ray: filterAsks found it asked of nobody
   std::vector<char> m_inbox;               // the message being read (an ask or an answer)
-  // An ask's rays as this rank traces them, their indices in the asker's flight, what they found.
-  std::vector<Ray> m_rays;
+  // An ask's rays as this rank traces them (with what they found), their indices in the asker's flight.
+  RayBatch m_answering;
   std::vector<int> m_indices;
-  std::vector<Hit> m_hits;
-  std::vector<char> m_found;
   Outbox m_outbox;
 };
 

@@ -411,6 +411,36 @@ TEST(Mpi, DataParallelTilesDealtAgainKeepTheImage) {
   });
 }
 
+// Camera rays asked of another rank are traced there in the packets they were traced in by the
+// rank that asked (the rays of one packet asked of it, flagged in the message): with camera rays
+// alone (normals), every cell any rank solves is solved in a packet's lanes, as in one process,
+// and the image is the same bits. (Traced one at a time, a rank's answers solve cells outside
+// the packets' counters.) ISOTRACE_TEST_REDEAL=rotate moves tiles to ranks whose boxes their rays
+// reach second: rays are asked of the others every pass.
+TEST(Mpi, CameraRaysAskedOfAnotherRankAreTracedThereInTheirPackets) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/s.json", glassNeghip(R"({"width": 64, "height": 48})", R"({"type": "normals", "spp": 3})"));
+  const std::string common = " render " + dir + "/s.json --data-parallel --quiet";
+  ASSERT_EQ(runIsotrace(common.substr(1) + " --threads 1 -o " + dir + "/one.exr --stats " + dir + "/one.json").status, 0);
+  const nlohmann::json single = readJson(dir + "/one.json");
+  ASSERT_GT(single["counters"]["Iso/CellsSolved"].get<double>(), 0);
+  ASSERT_EQ(single["counters"]["Packet/SolveLanes"], single["counters"]["Iso/CellsSolved"]);
+  const std::vector<float> reference = readExr(dir + "/one.exr");
+  for (int ranks : {2, 3}) {
+    SCOPED_TRACE(ranks);
+    const std::string out = dir + "/ranks" + std::to_string(ranks);
+    const auto r = runCommand(mpirun(ranks) + "-x ISOTRACE_TEST_REDEAL=rotate " + ISOTRACE_BINARY + common +
+                              " --threads 1 -o " + out + ".exr --stats " + out + ".json");
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(readExr(out + ".exr"), reference);
+    const nlohmann::json stats = readJson(out + ".json");
+    double sent = 0;
+    for (const auto& n : stats["rays_sent_per_rank"]) sent += n.get<double>();
+    EXPECT_GT(sent, 0) << stats.dump();
+    EXPECT_EQ(stats["counters"]["Packet/SolveLanes"], stats["counters"]["Iso/CellsSolved"]) << stats.dump();
+  }
+}
+
 // A data-parallel rank with no round left to start takes tiles from another during the pass (the
 // giver's unstarted tiles from the end of its list, at most half, with their sums).
 // ISOTRACE_TEST_DEAL=first deals every tile to rank 0, which answers every other rank's first
