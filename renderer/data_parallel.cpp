@@ -429,6 +429,7 @@ class RankTracer {
     // The hits found with the index of the ray in the asker's flight (a shadow ray: the index
     // alone, of the rays found blocked).
     std::vector<char> back;
+    back.reserve(sizeof(AskHeader) + n * (header.shadow ? sizeof(int) : sizeof(FoundIso)));  // (no copies as it grows)
     append(back, header);
     for (size_t k = 0; k < n; ++k) {
       if (!batch.found[k]) continue;
