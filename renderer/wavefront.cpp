@@ -39,6 +39,8 @@ void Wave::start(const Camera& camera, const Integrator& integrator, const Rende
   const size_t ns = m_samples;
   m_count = n * ns;
   if (m_paths.size() < m_count) m_paths.resize(m_count);  // reset path by path (PathState::begin)
+  m_live.resize(m_count);
+  for (size_t i = 0; i < m_count; ++i) m_live[i] = uint32_t(i);
   const uint64_t seedKey = Sampler::seedKey(options.seed);
   for (size_t i = 0; i < n; ++i) {
     const auto [x, y] = pixels[i];
@@ -88,14 +90,19 @@ void Wave::collect(RayBatch& batch) {
   if (m_next == Stage::Camera) {
     collectCamera(batch);
   } else {
-    for (size_t i = 0; i < m_count; ++i) {
+    size_t live = 0;
+    for (size_t k = 0; k < m_live.size(); ++k) {
+      const uint32_t i = m_live[k];
       PathState& p = m_paths[i];
+      if (!p.tracing && !p.shadowing) continue;  // (no ray of it in flight: it asks for none again)
+      m_live[live++] = i;
       bool& asks = batch.shadow ? p.shadowing : p.tracing;
       if (!asks) continue;
       asks = false;
       batch.rays.push_back(batch.shadow ? p.shadow : p.ray);
-      batch.paths.push_back(uint32_t(i));
+      batch.paths.push_back(i);
     }
+    m_live.resize(live);
   }
   m_next = batch.shadow ? Stage::Closest : Stage::Shadow;
   batch.prepareResults();
@@ -112,7 +119,7 @@ void Wave::deliver(const RayBatch& batch, size_t k0, size_t k1, RayCounters& cou
 }
 
 bool Wave::pending() const {
-  for (size_t i = 0; i < m_count; ++i)
+  for (uint32_t i : m_live)
     if (m_paths[i].tracing || m_paths[i].shadowing) return true;
   return false;
 }

@@ -87,6 +87,10 @@ class Wave {
   size_t m_pixels = 0, m_samples = 0, m_count = 0;  // pixels, samples of each (s1 - s0), paths
   enum class Stage { Camera, Shadow, Closest } m_next = Stage::Camera;
   std::vector<PathState> m_paths;  // pixel i's sample s at i * (s1 - s0) + (s - s0); reused
+  // The paths that may still ask for a ray, in increasing order: all of them at the start; a path
+  // found asking for none when a stage is collected has none in flight either, and is dropped.
+  // (Later stages look at these alone, not at every path of the wave.)
+  std::vector<uint32_t> m_live;
 };
 
 }  // namespace iso
