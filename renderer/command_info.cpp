@@ -53,10 +53,7 @@ void printPartition(const World& world, const SceneDesc& scene, int ranks) {
     const VolumeInfo& vi = world.volumes()[v];
     const Grid& g = *vi.grid;
     const BrickGrid& bricks = *vi.bricks;
-    std::vector<double> weights(bricks.size(), 0.0);
-    for (const SurfaceInfo& si : world.surfaces())
-      if (si.volume == int(v))
-        for (uint32_t b : si.surface->activeBricks()) weights[b] = 1;
+    const std::vector<double> weights = activeBrickWeights(bricks, isoValuesOf(scene.volumes[v]));
     const CutRays rays = cameraCutRays(scene, scene.camera.frameScene ? nullptr : &world.camera(), v);
     std::vector<int> cuts;
     const std::vector<RankBox> boxes =

@@ -503,6 +503,12 @@ CutRays cameraCutRays(const SceneDesc& scene, const CameraDesc* camera, size_t v
   return rays;
 }
 
+std::vector<double> isoValuesOf(const VolumeDesc& desc) {
+  std::vector<double> values;
+  for (const IsoSurfaceDesc& iso : desc.isosurfaces) values.push_back(iso.value);
+  return values;
+}
+
 namespace {
 // This rank's box of volume v (SceneDesc::dataPart) from the ranges of its bricks: boxes of
 // whole bricks balanced by the bricks active for the volume's iso values, cut where the fewest of
@@ -513,10 +519,7 @@ struct RankPart {
 };
 RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks, const CutRays& camera) {
   const VolumeDesc& desc = scene.volumes[v];
-  std::vector<double> weights(bricks.size(), 0.0);
-  for (const IsoSurfaceDesc& iso : desc.isosurfaces)
-    for (uint32_t b : bricks.activeBricks(float(iso.value))) weights[b] = 1;
-  const RankBox own = partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where,
+  const RankBox own = partitionBricks(bricks, activeBrickWeights(bricks, isoValuesOf(desc)), scene.dataPart.ranks, scene.path + ": " + desc.where,
                                       &camera)[size_t(scene.dataPart.rank)];
   return {own, heldBox(own, bricks, scene.settings.replicate)};
 }

@@ -327,6 +327,9 @@ void placeVolume(const VolumeDesc& desc, VolumeFile& volume);
 // MetaImage, binary VTK, NIfTI) — else none (the longest axis is cut). `isotrace info --ranks`
 // uses the same rays.
 CutRays cameraCutRays(const SceneDesc& scene, const CameraDesc* camera, size_t v);
+// The iso values of a volume's iso-surfaces, in order (what its bricks are weighed by when it is
+// split over ranks: activeBrickWeights).
+std::vector<double> isoValuesOf(const VolumeDesc& desc);
 // What a data-parallel render ("distribution": "data") cannot do yet, as an InputError naming the
 // place: queries the ranks would each answer for their own part only (colour by data, emissive or
 // clipped iso-surfaces, thin sheets' transmission, slices) and adaptive sampling.

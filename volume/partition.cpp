@@ -177,6 +177,13 @@ std::vector<RankBox> partitionBricks(const BrickGrid& bricks, const std::vector<
   return s.out;
 }
 
+std::vector<double> activeBrickWeights(const BrickGrid& bricks, const std::vector<double>& isoValues) {
+  std::vector<double> weights(bricks.size(), 0.0);
+  for (double iso : isoValues)
+    for (uint32_t b : bricks.activeBricks(float(iso))) weights[b] = 1;
+  return weights;
+}
+
 RankBox heldBox(const RankBox& own, const BrickGrid& bricks, double replicate) {
   const Vec3i n = bricks.count();
   const double budget = replicate * double(bricks.size());

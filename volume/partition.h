@@ -34,6 +34,11 @@ struct CutRays {
   std::vector<Vec3d> org, dir;
 };
 
+// The weights a data-parallel render balances its boxes by (one per brick of `bricks`): 1 for a
+// brick active for some of the iso values (BrickGrid::activeBricks), else 0. (The render and
+// `isotrace info --ranks` both take them from here.)
+std::vector<double> activeBrickWeights(const BrickGrid& bricks, const std::vector<double>& isoValues);
+
 // `weights`: one per brick of `bricks` (e.g. 1 for a brick active for some iso-surface); all 0:
 // the boxes are balanced by brick count. `ranks` boxes, every brick in exactly one; an
 // InputError (naming `where`) if the volume has fewer bricks than ranks along the cuts.
