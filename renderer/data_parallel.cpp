@@ -331,7 +331,7 @@ class RankTracer {
   // them a default Ray's; the others (leaving an iso-surface, with their origin in double and
   // their start class) whole, 112 bytes. A camera packet's rays asked of a rank go one after
   // another, the first flagged kPacketStart: the rank traces them as a packet, as the asker does
-  // (World::intersectPacket, the same hits as one at a time, faster).
+  // (World::intersectPacket: the same hits as one at a time, in fewer instructions).
   struct AskedShort {
     int32_t index;
     int32_t flags;  // kWhole: an AskedWhole, not this; kPacketStart: the first ray asked of a camera packet
@@ -391,17 +391,21 @@ class RankTracer {
     batch.rays.clear();
     batch.packetEnds.clear();
     m_indices.clear();
+    bool packed = false;  // the message's rays come in packets (its first is flagged)
+    size_t packetStart = 0;
     for (size_t at = sizeof(AskHeader); at < bytes.size();) {
       if (bytes.size() - at < sizeof(AskedShort)) MPI_Abort(MPI_COMM_WORLD, 1);
       const AskedShort a = read<AskedShort>(bytes, at);
-      const bool packed = (a.flags & kPacketStart) || !batch.packetEnds.empty();
-      if ((a.flags & ~(kWhole | kPacketStart)) || ((a.flags & kWhole) && packed) || (packed && batch.shadow) ||
-          (packed && batch.packetEnds.empty() && !batch.rays.empty()))
-        MPI_Abort(MPI_COMM_WORLD, 1);  // (a rank of this job sent it: cannot happen)
-      if (packed) {
-        if (a.flags & kPacketStart) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
-        if (batch.rays.size() - batch.packetEnds.back() >= size_t(World::kPacket)) MPI_Abort(MPI_COMM_WORLD, 1);
+      const size_t k = batch.rays.size();
+      if (a.flags & kPacketStart) {
+        if (k == 0) packed = true;
+        else if (packed) batch.packetEnds.push_back(uint32_t(k));  // (the packet before ends here)
+        packetStart = k;
       }
+      // (A rank of this job sent it, so none of these can happen.)
+      if ((a.flags & ~(kWhole | kPacketStart)) || ((a.flags & kPacketStart) && !packed) ||
+          (packed && ((a.flags & kWhole) || batch.shadow || k - packetStart >= size_t(World::kPacket))))
+        MPI_Abort(MPI_COMM_WORLD, 1);
       m_indices.push_back(a.index);
       if (a.flags & kWhole) {
         if (bytes.size() - at < sizeof(AskedWhole)) MPI_Abort(MPI_COMM_WORLD, 1);
@@ -417,11 +421,7 @@ class RankTracer {
       }
       batch.rays.back().mask = World::kVolumeMask;
     }
-    // (packetEnds held each packet's start so far: each its end, as RayBatch has them.)
-    if (!batch.packetEnds.empty()) {
-      batch.packetEnds.erase(batch.packetEnds.begin());
-      batch.packetEnds.push_back(uint32_t(batch.rays.size()));
-    }
+    if (packed) batch.packetEnds.push_back(uint32_t(batch.rays.size()));
     const size_t n = batch.size();
     raysReceived += double(n);
     batch.prepareResults();

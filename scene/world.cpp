@@ -519,7 +519,8 @@ struct RankPart {
 };
 RankPart rankPart(const SceneDesc& scene, size_t v, const BrickGrid& bricks, const CutRays& camera) {
   const VolumeDesc& desc = scene.volumes[v];
-  const RankBox own = partitionBricks(bricks, activeBrickWeights(bricks, isoValuesOf(desc)), scene.dataPart.ranks, scene.path + ": " + desc.where,
+  const std::vector<double> weights = activeBrickWeights(bricks, isoValuesOf(desc));
+  const RankBox own = partitionBricks(bricks, weights, scene.dataPart.ranks, scene.path + ": " + desc.where,
                                       &camera)[size_t(scene.dataPart.rank)];
   return {own, heldBox(own, bricks, scene.settings.replicate)};
 }
