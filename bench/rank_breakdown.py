@@ -16,10 +16,11 @@ then the functions whose counts differ most. Self costs (callgrind_annotate --in
 each instruction is counted once. Counts repeat for the one process; the ranks' totals move with
 their waits (polling), the functions' own counts much less.
 Usage: bench/rank_breakdown.py SCENE.json [--ranks 2] [--resolution 240x135] [--spp 8]
-       [--replicate F] [--isotrace BINARY] [--top 20]
+       [--replicate F] [--isotrace BINARY] [--top 20] [--json FILE]
 """
 import argparse
 import collections
+import json
 import os
 import re
 import shutil
@@ -74,6 +75,7 @@ def main():
     ap.add_argument("--replicate")
     ap.add_argument("--isotrace", default=os.path.join(ROOT, "build", "isotrace"))
     ap.add_argument("--top", type=int, default=20)
+    ap.add_argument("--json", help="also write every function's self costs here (one process, each rank) to compare runs")
     args = ap.parse_args()
     if args.ranks < 2 or args.ranks > 16:
         sys.exit("rank_breakdown: --ranks: 2 to 16")
@@ -104,6 +106,9 @@ def main():
             sys.exit("rank_breakdown: the ranks failed:\n" + r.stderr[-2000:])
         one = self_costs(single)
         ranks = [self_costs(os.path.join(work, "rank.%d.out" % q)) for q in range(args.ranks)]
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"one": one, "ranks": ranks}, f)
     both = collections.Counter()
     for c in ranks:
         both.update(c)
