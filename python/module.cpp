@@ -7,7 +7,6 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
-#include <OpenImageIO/imageio.h>
 #include <tbb/task_arena.h>
 
 #include <atomic>
@@ -30,6 +29,7 @@
 #include "renderer/render.h"
 #include "renderer/sequence.h"
 #include "scene/gltf.h"
+#include "scene/image_plugin.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
 
@@ -215,14 +215,14 @@ py::bytes pngBytes(py::array_t<float, py::array::c_style | py::array::forcecast>
 // An image file's pixels as float32 H x W x C (row 0 at the top): to compare with what the
 // command line wrote, and to read back what a frame saved.
 py::array_t<float> readImage(const std::string& path) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) throw InputError(path, "", "cannot read the image (" + OIIO::geterror() + ")");
-  const OIIO::ImageSpec& spec = in->spec();
-  if (spec.width < 1 || spec.height < 1 || spec.nchannels < 1 || double(spec.width) * spec.height * spec.nchannels > double(1ull << 32))
+  std::string error;
+  std::unique_ptr<ImageReader> in = imagePlugin().open(path, nullptr, 0, error);
+  if (!in) throw InputError(path, "", "cannot read the image (" + error + ")");
+  if (in->width < 1 || in->height < 1 || in->channels < 1 || double(in->width) * in->height * in->channels > double(1ull << 32))
     throw InputError(path, "", "unsupported image size");
-  py::array_t<float> out({py::ssize_t(spec.height), py::ssize_t(spec.width), py::ssize_t(spec.nchannels)});
-  if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, out.mutable_data()))
-    throw InputError(path, "", "cannot read the image (" + in->geterror() + ")");
+  py::array_t<float> out({py::ssize_t(in->height), py::ssize_t(in->width), py::ssize_t(in->channels)});
+  error = in->readFloats(out.mutable_data());
+  if (!error.empty()) throw InputError(path, "", "cannot read the image (" + error + ")");
   return out;
 }
 

@@ -1,15 +1,25 @@
 #include "renderer/film.h"
 
-#include <OpenImageIO/imagebuf.h>
-#include <OpenImageIO/imagebufalgo.h>
-#include <OpenImageIO/imageio.h>
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfStandardAttributes.h>
+#include <OpenEXR/ImfStringAttribute.h>
+#include <png.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cerrno>
+#include <csetjmp>
+#include <cstdio>
+#include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <stdexcept>
 #include <unistd.h>
 
+#include "scene/image_plugin.h"
 #include "volume/input_error.h"
 
 namespace iso {
@@ -121,9 +131,7 @@ constexpr int kLegendHeight = 40;  // pixels per colour bar: the bar, then its l
 // field's name between them.
 std::vector<uint8_t> legendStrip(const DisplaySettings& display, int w, int channels) {
   const int h = kLegendHeight * int(display.legends.size());
-  OIIO::ImageBuf strip(OIIO::ImageSpec(w, h, 3, OIIO::TypeDesc::FLOAT));
-  const float ground[3] = {0.08f, 0.08f, 0.08f};
-  OIIO::ImageBufAlgo::fill(strip, ground);
+  std::vector<float> rgb(size_t(w) * h * 3, 0.08f);  // the ground
   const int margin = std::max(4, w / 40);
   const int size = std::clamp(w / 40, 9, 16);
   for (size_t k = 0; k < display.legends.size(); ++k) {
@@ -131,24 +139,25 @@ std::vector<uint8_t> legendStrip(const DisplaySettings& display, int w, int chan
     const int top = int(k) * kLegendHeight + 4;
     for (int x = margin; x < w - margin; ++x) {
       const Vec3f c = l.map.srgb(float(x - margin) / float(std::max(1, w - 2 * margin - 1)));
-      const float rgb[3] = {c.x, c.y, c.z};
-      for (int y = top; y < top + 12; ++y) strip.setpixel(x, y, rgb, 3);
+      for (int y = top; y < top + 12; ++y) {
+        float* p = &rgb[(size_t(y) * w + x) * 3];
+        p[0] = c.x;
+        p[1] = c.y;
+        p[2] = c.z;
+      }
     }
     const float white[3] = {0.92f, 0.92f, 0.92f};
     char lo[32], hi[32];
     std::snprintf(lo, sizeof lo, "%.4g", l.lo);
     std::snprintf(hi, sizeof hi, "%.4g", l.hi);
     const int baseline = top + 14 + size;
-    bool ok = OIIO::ImageBufAlgo::render_text(strip, margin, baseline, lo, size, display.font, white);
-    ok = ok && OIIO::ImageBufAlgo::render_text(strip, w - margin, baseline, hi, size, display.font, white,
-                                               OIIO::ImageBufAlgo::TextAlignX::Right);
-    ok = ok && OIIO::ImageBufAlgo::render_text(strip, w / 2, baseline, l.title, size, display.font, white,
-                                               OIIO::ImageBufAlgo::TextAlignX::Center);
-    if (!ok) throw InputError("--colorbar", "", "cannot draw the legend's text: " + strip.geterror());
+    ImagePlugin& text = imagePlugin();
+    std::string error = text.drawText(rgb.data(), w, h, margin, baseline, lo, size, display.font, white, 0);
+    if (error.empty()) error = text.drawText(rgb.data(), w, h, w - margin, baseline, hi, size, display.font, white, 1);
+    if (error.empty()) error = text.drawText(rgb.data(), w, h, w / 2, baseline, l.title, size, display.font, white, 2);
+    if (!error.empty()) throw InputError("--colorbar", "", "cannot draw the legend's text: " + error);
   }
   std::vector<uint8_t> bytes(size_t(w) * h * channels, 255);
-  std::vector<float> rgb(size_t(w) * h * 3);
-  strip.get_pixels(strip.roi(), OIIO::TypeDesc::FLOAT, rgb.data());
   for (size_t p = 0; p < size_t(w) * h; ++p)
     for (int ch = 0; ch < 3; ++ch) bytes[p * channels + ch] = uint8_t(std::lround(std::clamp(rgb[p * 3 + ch], 0.f, 1.f) * 255));
   return bytes;
@@ -165,13 +174,90 @@ std::vector<uint8_t> displayFrame(const Film& film, bool signedData, const Displ
   return bytes;
 }
 
+namespace {
+
+// The local time as EXR's capDate and PNG's "Creation Time" want it: "YYYY:MM:DD HH:MM:SS".
+std::string nowStamp() {
+  const std::time_t now = std::time(nullptr);
+  std::tm local{};
+  localtime_r(&now, &local);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y:%m:%d %H:%M:%S", &local);
+  return text;
+}
+
+// Float channels, zip-compressed scan lines, the metadata as string attributes (what OpenImageIO
+// wrote before, written with OpenEXR itself); "" or the error.
+std::string writeExr(const std::string& path, const ImagePlugin::Pixels& p, const std::map<std::string, std::string>& metadata) {
+  try {
+    Imf::Header header(p.width, p.height);
+    header.compression() = Imf::ZIP_COMPRESSION;
+    for (const std::string& name : p.names) header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+    Imf::addCapDate(header, nowStamp());
+    for (const auto& [key, value] : metadata) header.insert(key, Imf::StringAttribute(value));
+    Imf::FrameBuffer frame;
+    const size_t pixelBytes = sizeof(float) * size_t(p.channels);
+    for (int c = 0; c < p.channels; ++c)
+      frame.insert(p.names[size_t(c)], Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(p.floats + c)),
+                                                  pixelBytes, pixelBytes * size_t(p.width)));
+    Imf::OutputFile file(path.c_str(), header);
+    file.setFrameBuffer(frame);
+    file.writePixels(p.height);
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// 8-bit RGB or RGBA with the metadata as text chunks and the sRGB chunk; "" or the error.
+std::string writePng(const std::string& path, const ImagePlugin::Pixels& p, const std::map<std::string, std::string>& metadata) {
+  // (Everything with a destructor is made before setjmp: libpng's errors jump back past the rest.)
+  std::vector<png_text> texts;
+  for (const auto& [key, value] : metadata) {
+    png_text t{};
+    t.compression = PNG_TEXT_COMPRESSION_NONE;
+    t.key = const_cast<char*>(key.c_str());
+    t.text = const_cast<char*>(value.c_str());
+    t.text_length = value.size();
+    texts.push_back(t);
+  }
+  std::FILE* file = std::fopen(path.c_str(), "wb");
+  if (!file) return std::string("cannot open the file: ") + std::strerror(errno);
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  const char* volatile error = nullptr;  // (set after a longjmp: volatile)
+  if (!png || !info) {
+    error = "out of memory";
+  } else if (setjmp(png_jmpbuf(png))) {
+    error = "libpng could not write it";
+  } else {
+    png_init_io(png, file);
+    png_set_IHDR(png, info, png_uint_32(p.width), png_uint_32(p.height), 8,
+                 p.channels == 4 ? PNG_COLOR_TYPE_RGB_ALPHA : PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
+                 PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+    png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);
+    if (!texts.empty()) png_set_text(png, info, texts.data(), int(texts.size()));
+    png_write_info(png, info);
+    const size_t rowBytes = size_t(p.width) * size_t(p.channels);
+    for (int y = 0; y < p.height; ++y) png_write_row(png, const_cast<png_bytep>(p.bytes + size_t(y) * rowBytes));
+    png_write_end(png, info);
+  }
+  png_destroy_write_struct(png ? &png : nullptr, info ? &info : nullptr);
+  const bool closed = std::fclose(file) == 0;
+  if (error) return error;
+  if (!closed) return std::string("cannot write the file: ") + std::strerror(errno);
+  return "";
+}
+
+}  // namespace
+
 void writeImage(const std::string& path, const Film& film, bool signedData,
                 const std::map<std::string, std::string>& metadata, const DisplaySettings& display) {
   const ImageFormat format = imageFormatFor(path);
   const fs::path target(path);
   if (target.has_parent_path() && !fs::is_directory(target.parent_path()))
     throw InputError(path, "", "output directory does not exist");
-  // Same extension, so OpenImageIO picks the same writer for the temporary file.
+  // Same extension: the same writer for the temporary file.
   const fs::path temp = target.parent_path() /
                         ("." + target.stem().string() + ".partial-" + std::to_string(getpid()) +
                          target.extension().string());
@@ -189,9 +275,6 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         names.push_back(layer.name + "." + c);
         ++channels;
       }
-  OIIO::ImageSpec spec(w, h + legendRows, channels, exr ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
-  spec.channelnames = names;
-  for (const auto& [key, value] : metadata) spec.attribute(key, value);
   std::vector<float> floats;
   std::vector<uint8_t> bytes;
   if (exr) {
@@ -206,7 +289,6 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
           for (size_t c = 0; c < layer.channels.size(); ++c) *out++ = layer.data[pixel * layer.channels.size() + c];
       }
   } else {
-    if (alpha) spec.alpha_channel = 3;
     bytes.resize(size_t(w) * (h + legendRows) * channels);
     if (legendRows > 0) {
       const std::vector<uint8_t> strip = legendStrip(display, w, channels);
@@ -225,16 +307,19 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         if (alpha) bytes[pixel * channels + 3] = uint8_t(std::lround(std::clamp(a, 0.f, 1.f) * 255));
       }
   }
-  auto out = OIIO::ImageOutput::create(temp.string());
-  bool ok = out && out->open(temp.string(), spec);
-  if (ok) {
-    ok = exr ? out->write_image(OIIO::TypeDesc::FLOAT, floats.data())
-                                    : out->write_image(OIIO::TypeDesc::UINT8, bytes.data());
-    ok = out->close() && ok;
-  }
+  ImagePlugin::Pixels pixels;
+  pixels.width = w;
+  pixels.height = h + legendRows;
+  pixels.channels = channels;
+  pixels.names = names;
+  pixels.alphaChannel = alpha ? 3 : -1;
+  pixels.floats = exr ? floats.data() : nullptr;
+  pixels.bytes = exr ? nullptr : bytes.data();
+  const std::string why = format == ImageFormat::Exr   ? writeExr(temp.string(), pixels, metadata)
+                          : format == ImageFormat::Png ? writePng(temp.string(), pixels, metadata)
+                                                       : imagePlugin().write(temp.string(), pixels, metadata);
   std::error_code ec;
-  if (!ok) {
-    const std::string why = out ? out->geterror() : OIIO::geterror();
+  if (!why.empty()) {
     fs::remove(temp, ec);
     throw InputError(path, "", "cannot write image: " + why);
   }

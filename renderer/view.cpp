@@ -1,7 +1,5 @@
 #include "renderer/view.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
 #include <httplib.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -23,6 +21,7 @@
 
 #include "renderer/render.h"
 #include "renderer/view_page.h"
+#include "scene/image_plugin.h"
 #include "scene/time_series.h"
 #include "scene/world.h"
 #include "volume/input_error.h"
@@ -75,17 +74,10 @@ std::string base64(const std::string& bytes) {
   return out;
 }
 
-// 8-bit RGB as a JPEG file's bytes (OpenImageIO writing to memory).
+// 8-bit RGB as a JPEG file's bytes (empty if it cannot be encoded).
 std::string jpeg(const std::vector<uint8_t>& rgb, int w, int h) {
   std::vector<unsigned char> bytes;
-  OIIO::Filesystem::IOVecOutput memory(bytes);
-  OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
-  spec.attribute("Compression", "jpeg:90");
-  void* proxy = &memory;
-  spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy);
-  auto out = OIIO::ImageOutput::create("frame.jpg");
-  if (!out || !out->open("frame.jpg", spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb.data()) || !out->close())
-    return {};
+  if (!imagePlugin().encodeJpeg(rgb.data(), w, h, 90, bytes).empty()) return {};
   return std::string(bytes.begin(), bytes.end());
 }
 
@@ -860,6 +852,7 @@ void onViewSignal(int) { g_viewStop = 1; }
 }  // namespace
 
 int runView(const std::string& scenePath, const ViewOptions& options) {
+  imagePlugin();  // the frames' JPEG encoder: loaded now, so that a broken installation stops here, not mid-frame
   ViewServer server(scenePath, options);
   server.bind();
   if (options.host != "127.0.0.1" && options.host != "localhost")

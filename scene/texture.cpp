@@ -1,8 +1,5 @@
 #include "scene/texture.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
-
 #include <zlib.h>
 
 #include <cmath>
@@ -10,6 +7,7 @@
 #include <fstream>
 #include <iterator>
 
+#include "scene/image_plugin.h"
 #include "volume/input_error.h"
 #include "volume/input_file.h"
 
@@ -36,25 +34,29 @@ int wrapIndex(int i, int n, TextureWrap wrap) {
 
 constexpr size_t kMaxTexels = size_t(1) << 25;
 
-// Reads all of `in` as float RGBA, linearising sRGB 8-bit colour if asked.
-Texture readImage(OIIO::ImageInput& in, const std::string& name, bool srgb, std::vector<Vec4f>& texels,
-                  int& width, int& height) {
-  const OIIO::ImageSpec& spec = in.spec();
-  width = spec.width;
-  height = spec.height;
-  const int channels = spec.nchannels;
+// Reads `name` (a file, or `size` bytes in memory whose format the name's extension says) as
+// float RGBA, linearising sRGB 8-bit colour if asked.
+// Errors name `shown`; one opening the image begins with `failure`.
+void readImage(const std::string& name, const unsigned char* bytes, size_t size, const std::string& shown,
+               const char* failure, bool srgb, std::vector<Vec4f>& texels, int& width, int& height) {
+  std::string error;
+  std::unique_ptr<ImageReader> in = imagePlugin().open(name, bytes, size, error);
+  if (!in) throw InputError(shown, "", failure + error);
+  width = in->width;
+  height = in->height;
+  const int channels = in->channels;
   // The memory budget of one image: 2^25 texels (e.g. 8192x4096) of float RGBA, 512 MiB, plus
   // the decoded channels while converting. Checked from the header, before decoding.
   if (width <= 0 || height <= 0 || channels <= 0 || channels > 16)
-    throw InputError(name, "", "image has an unusable size (" + std::to_string(width) + "x" + std::to_string(height) +
-                                   ", " + std::to_string(channels) + " channels)");
+    throw InputError(shown, "", "image has an unusable size (" + std::to_string(width) + "x" + std::to_string(height) +
+                                    ", " + std::to_string(channels) + " channels)");
   if (size_t(width) * size_t(height) > kMaxTexels)
-    throw InputError(name, "", "image of " + std::to_string(width) + "x" + std::to_string(height) +
-                                   " is more than 2^25 texels (e.g. 8192x4096), the limit of one texture");
+    throw InputError(shown, "", "image of " + std::to_string(width) + "x" + std::to_string(height) +
+                                    " is more than 2^25 texels (e.g. 8192x4096), the limit of one texture");
   std::vector<float> data(size_t(width) * height * channels);
-  if (!in.read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, data.data()))
-    throw InputError(name, "", "cannot decode image: " + in.geterror());
-  const bool linearise = srgb && spec.format.basetype == OIIO::TypeDesc::UINT8;
+  error = in->readFloats(data.data());
+  if (!error.empty()) throw InputError(shown, "", "cannot decode image: " + error);
+  const bool linearise = srgb && in->eightBit;
   texels.resize(size_t(width) * height);
   for (size_t i = 0; i < texels.size(); ++i) {
     const float* p = &data[i * channels];
@@ -64,10 +66,9 @@ Texture readImage(OIIO::ImageInput& in, const std::string& name, bool srgb, std:
     if (linearise)
       for (int k = 0; k < 3; ++k) c[k] = srgbToLinear(c[k]);
     for (int k = 0; k < 4; ++k)
-      if (!std::isfinite(c[k])) throw InputError(name, "pixel " + std::to_string(i), "value is not finite");
+      if (!std::isfinite(c[k])) throw InputError(shown, "pixel " + std::to_string(i), "value is not finite");
     texels[i] = {c[0], c[1], c[2], c[3]};
   }
-  return {};
 }
 
 }  // namespace
@@ -159,17 +160,14 @@ std::vector<unsigned char> checkedPng(const std::vector<unsigned char>& png, con
 
 Texture Texture::decode(const std::vector<unsigned char>& encoded, const std::string& name, bool srgb,
                         TextureWrap wrapS, TextureWrap wrapT, bool nearest) {
-  // OpenImageIO picks its reader by extension; the bytes say which one it is.
+  // The plugin's reader is picked by extension; the bytes say which one it is.
   std::string ext = ".png";
   if (encoded.size() >= 3 && encoded[0] == 0xFF && encoded[1] == 0xD8) ext = ".jpg";
   else if (!(encoded.size() >= 8 && encoded[0] == 0x89 && encoded[1] == 'P'))
     throw InputError(name, "", "image is neither PNG nor JPEG");
   const std::vector<unsigned char> bytes = ext == ".png" ? checkedPng(encoded, name) : encoded;
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
-  auto in = OIIO::ImageInput::open("texture" + ext, nullptr, &reader);
-  if (!in) throw InputError(name, "", "cannot decode image: " + OIIO::geterror());
   Texture t;
-  readImage(*in, name, srgb, t.m_texels, t.m_width, t.m_height);
+  readImage("texture" + ext, bytes.data(), bytes.size(), name, "cannot decode image: ", srgb, t.m_texels, t.m_width, t.m_height);
   t.m_wrapS = wrapS;
   t.m_wrapT = wrapT;
   t.m_nearest = nearest;
@@ -197,11 +195,9 @@ Texture Texture::loadFile(const std::string& path) {
       png = checkedPng(std::vector<unsigned char>((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>()), path);
     }
   }
-  OIIO::Filesystem::IOMemReader reader(png.data(), png.size());
-  auto in = png.empty() ? OIIO::ImageInput::open(path) : OIIO::ImageInput::open("environment.png", nullptr, &reader);
-  if (!in) throw InputError(path, "", "cannot read image: " + OIIO::geterror());
   Texture t;
-  readImage(*in, path, true, t.m_texels, t.m_width, t.m_height);
+  if (png.empty()) readImage(path, nullptr, 0, path, "cannot read image: ", true, t.m_texels, t.m_width, t.m_height);
+  else readImage("environment.png", png.data(), png.size(), path, "cannot read image: ", true, t.m_texels, t.m_width, t.m_height);
   t.m_wrapS = TextureWrap::Repeat;
   t.m_wrapT = TextureWrap::Clamp;
   return t;

@@ -2,6 +2,8 @@
 # Installs the Debian packages isotrace needs (idempotent; quiet when nothing is missing)
 # and configures + builds a Release build in ./build. openimageio-tools is listed because
 # Debian 12's OpenImageIO CMake config refers to its binaries and fails without them;
+# libopenexr-dev and libpng-dev write EXR and PNG output without OpenImageIO (which only a
+# plugin loaded at first use links, scene/image_plugin.h);
 # libopenvdb-dev (with libboost-iostreams-dev, which its CMake module needs) builds
 # `isotrace mesh` (OpenVDB's volumeToMesh). libnifti2-dev reads NIfTI headers; python3-nibabel
 # is there for its test files (real NIfTI-1/2 volumes the tests read), python3-pydicom for its
@@ -22,7 +24,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 packages=(build-essential cmake pkg-config
-          libembree-dev libopenimageio-dev openimageio-tools libtbb-dev
+          libembree-dev libopenimageio-dev openimageio-tools libopenexr-dev libpng-dev libtbb-dev
           libtinygltf-dev nlohmann-json3-dev libstb-dev
           libcli11-dev libgtest-dev libbenchmark-dev zlib1g-dev
           libopenvdb-dev libboost-iostreams-dev

@@ -91,6 +91,45 @@ TEST(Cli, SceneErrorsNameTheirJsonPath) {
   expectBadInput(dir, dir + "/absent.json", "absent.json: scene file not found");
 }
 
+// OpenImageIO (and the ~260 libraries it brings) lives in a plugin loaded at first use: a render
+// of an untextured scene to EXR or PNG never maps it (the dynamic loader's own list of the files
+// it opens says so); a textured glTF and JPEG output load it, and the texture shows.
+TEST(Cli, OpenImageIoLoadsOnlyForWhatNeedsIt) {
+  const std::string dir = test::scratchDir();
+  test::writeText(dir + "/plain.json", mixedScene());
+  auto loaded = [](const test::CommandResult& r) { return r.err.find("file=libOpenImageIO.so") != std::string::npos; };
+  for (const char* ext : {"exr", "png"}) {
+    const std::string image = dir + "/plain." + ext;
+    const auto r = test::runCommand("LD_DEBUG=files " + std::string(ISOTRACE_BINARY) + " render " + dir +
+                                    "/plain.json --spp 2 --quiet -o " + image);
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_FALSE(loaded(r)) << ext;
+    EXPECT_TRUE(fs::file_size(image) > 0);
+  }
+  // The box's base colour texture is the glTF logo, blue and green on grey; white without it.
+  const std::string textured = R"({"camera": {"position": [1.5, 1.2, 2.2], "look_at": [0, 0, 0], "fov": 40},
+    "film": {"width": 48, "height": 36}, "integrator": {"type": "eyelight", "spp": 2},
+    "meshes": [{"file": ")" + test::dataPath("meshes/BoxTextured/BoxTextured.gltf") + R"("}]})";
+  test::writeText(dir + "/textured.json", textured);
+  for (const char* ext : {"exr", "jpg"}) {
+    const std::string image = dir + "/textured." + ext;
+    const auto r = test::runCommand("LD_DEBUG=files " + std::string(ISOTRACE_BINARY) + " render " + dir +
+                                    "/textured.json --quiet -o " + image);
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_TRUE(loaded(r)) << ext;
+  }
+  std::vector<std::string> channels;
+  const std::vector<float> pixels = readExr(dir + "/textured.exr", &channels);
+  ASSERT_EQ(pixels.size(), size_t(48 * 36) * channels.size());
+  double red = 0, blue = 0;
+  for (size_t p = 0; p < size_t(48 * 36); ++p) {
+    red += pixels[p * channels.size()];
+    blue += pixels[p * channels.size() + 2];
+  }
+  EXPECT_GT(red, 0) << "the box is seen";
+  EXPECT_GT(blue, 1.3 * red) << "the texture's blue and green, not the white of an untextured box";
+}
+
 TEST(Cli, BadFlagsExitWithStatus2) {
   const std::string dir = test::scratchDir();
   const std::string path = dir + "/s.json";

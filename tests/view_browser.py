@@ -14,6 +14,7 @@ Usage: tests/view_browser.py ISOTRACE_BINARY [--screenshot FILE.png]
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -234,6 +235,7 @@ def main():
             fail("the server did not stop on SIGINT within 60 s")
         if server.returncode != 0:
             fail("the server exited with %d: %s" % (server.returncode, server.stderr.read()))
+        shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
