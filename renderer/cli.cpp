@@ -17,6 +17,7 @@
 #include <regex>
 
 #include "renderer/commands.h"
+#include "scene/image_plugin.h"
 #include "volume/input_error.h"
 #include "volume/iso_mesh.h"
 
@@ -154,6 +155,9 @@ int runCommandLine(int argc, char** argv) {
     return 2;
   } catch (const std::bad_alloc&) {
     std::fprintf(stderr, "isotrace: out of memory\n");
+    return 1;
+  } catch (const PluginMissing& e) {
+    std::fprintf(stderr, "isotrace: %s\n", e.what());
     return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "isotrace: internal error: %s\n", e.what());

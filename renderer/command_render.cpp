@@ -22,6 +22,7 @@
 #include "renderer/render.h"
 #include "renderer/sequence.h"
 #include "renderer/video.h"
+#include "scene/image_plugin.h"
 #include "scene/time_series.h"
 #include "volume/input_error.h"
 
@@ -69,6 +70,9 @@ DisplaySettings displayFlags(const RenderFlags& f, const std::string& output) {
     if (d.font.empty())
       throw InputError("--colorbar", "", "no font for the legend's text (DejaVu Sans: install fonts-dejavu-core; scripts/setup.sh does)");
   }
+  // JPEG and the legends' text are written through the image plugin: loaded now, so that an
+  // installation without it stops before the render, not after it.
+  if (format == ImageFormat::Jpeg || (f.colorbar && format != ImageFormat::Exr)) imagePlugin();
   return d;
 }
 

@@ -3,6 +3,7 @@
 #include <dlfcn.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <stdexcept>
 
@@ -12,17 +13,18 @@ namespace {
 constexpr const char* kLibrary = "libisotrace_oiio.so";
 
 // The folders to look in: the program's (isotrace), the shared object's holding this code (the
-// Python module), and the build folder the library was built in.
+// Python module), and the build folder the library was built in; only $ISOTRACE_PLUGIN_DIR if set.
 std::vector<std::filesystem::path> pluginFolders() {
   std::vector<std::filesystem::path> folders;
+  if (const char* dir = std::getenv("ISOTRACE_PLUGIN_DIR")) return {dir};
   std::error_code ec;
   const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
   if (!ec) folders.push_back(exe.parent_path());
   Dl_info info;
   if (dladdr(reinterpret_cast<void*>(&imagePlugin), &info) && info.dli_fname && *info.dli_fname)
     folders.push_back(std::filesystem::path(info.dli_fname).parent_path());
-#ifdef ISOTRACE_PLUGIN_DIR
-  folders.push_back(ISOTRACE_PLUGIN_DIR);
+#ifdef ISOTRACE_BUILD_DIR
+  folders.push_back(ISOTRACE_BUILD_DIR);
 #endif
   return folders;
 }
@@ -42,8 +44,9 @@ ImagePlugin* load() {
     if (entry) return entry();  // (never closed: its objects live as long as the process)
     errors += "; " + path.string() + ": no isotraceImagePlugin";
   }
-  throw std::runtime_error(std::string("cannot load ") + kLibrary + ", isotrace's OpenImageIO reader and writer" +
-                           (errors.empty() ? " (not found beside the program or in its build folder)" : errors));
+  throw PluginMissing(std::string("cannot load ") + kLibrary + ", isotrace's OpenImageIO reader and writer" +
+                      (errors.empty() ? " (not found beside the program, in its build folder or in $ISOTRACE_PLUGIN_DIR)"
+                                      : errors));
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -53,8 +54,15 @@ class ImagePlugin {
                                const std::string& font, const float color[3], int align) = 0;
 };
 
+// The plugin cannot be loaded (an installation without it): not the input's fault.
+class PluginMissing : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 // The plugin, loaded at the first call from beside the program (or the Python module) or from the
-// build folder it was built in; std::runtime_error naming the library if it cannot be loaded.
+// build folder it was built in (only from $ISOTRACE_PLUGIN_DIR when that is set); PluginMissing
+// naming the library if it cannot be loaded.
 ImagePlugin& imagePlugin();
 
 }  // namespace iso

@@ -118,6 +118,16 @@ TEST(Cli, OpenImageIoLoadsOnlyForWhatNeedsIt) {
     ASSERT_EQ(r.status, 0) << r.err;
     EXPECT_TRUE(loaded(r)) << ext;
   }
+  // Without the plugin: what needs it ends with one line naming the library and no image; the rest
+  // renders as before.
+  const auto missing = test::runCommand("ISOTRACE_PLUGIN_DIR=" + dir + " " + std::string(ISOTRACE_BINARY) + " render " +
+                                        dir + "/textured.json --quiet -o " + dir + "/none.png");
+  EXPECT_EQ(missing.status, 1) << missing.err;
+  EXPECT_NE(missing.err.find("isotrace: cannot load libisotrace_oiio.so"), std::string::npos) << missing.err;
+  EXPECT_EQ(std::count(missing.err.begin(), missing.err.end(), '\n'), 1) << missing.err;
+  EXPECT_FALSE(fs::exists(dir + "/none.png"));
+  EXPECT_EQ(test::runCommand("ISOTRACE_PLUGIN_DIR=" + dir + " " + std::string(ISOTRACE_BINARY) + " render " + dir +
+                             "/plain.json --spp 2 --quiet -o " + dir + "/plain2.png").status, 0);
   std::vector<std::string> channels;
   const std::vector<float> pixels = readExr(dir + "/textured.exr", &channels);
   ASSERT_EQ(pixels.size(), size_t(48 * 36) * channels.size());
