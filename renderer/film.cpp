@@ -176,7 +176,7 @@ std::vector<uint8_t> displayFrame(const Film& film, bool signedData, const Displ
 
 namespace {
 
-// The local time as EXR's capDate and PNG's "Creation Time" want it: "YYYY:MM:DD HH:MM:SS".
+// The local time as EXR's capDate wants it: "YYYY:MM:DD HH:MM:SS".
 std::string nowStamp() {
   const std::time_t now = std::time(nullptr);
   std::tm local{};
@@ -209,6 +209,14 @@ std::string writeExr(const std::string& path, const ImagePlugin::Pixels& p, cons
   return "";
 }
 
+// libpng's error handler: the message kept for writePng (libpng's own would print it), then back
+// to its setjmp. Warnings are dropped: the message of a failure is the error's.
+[[noreturn]] void pngError(png_structp png, png_const_charp message) {
+  std::snprintf(static_cast<char*>(png_get_error_ptr(png)), 200, "%s", message);
+  png_longjmp(png, 1);
+}
+void pngWarning(png_structp, png_const_charp) {}
+
 // 8-bit RGB or RGBA with the metadata as text chunks and the sRGB chunk; "" or the error.
 std::string writePng(const std::string& path, const ImagePlugin::Pixels& p, const std::map<std::string, std::string>& metadata) {
   // (Everything with a destructor is made before setjmp: libpng's errors jump back past the rest.)
@@ -223,13 +231,14 @@ std::string writePng(const std::string& path, const ImagePlugin::Pixels& p, cons
   }
   std::FILE* file = std::fopen(path.c_str(), "wb");
   if (!file) return std::string("cannot open the file: ") + std::strerror(errno);
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  char message[200] = "";
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, message, pngError, pngWarning);
   png_infop info = png ? png_create_info_struct(png) : nullptr;
   const char* volatile error = nullptr;  // (set after a longjmp: volatile)
   if (!png || !info) {
     error = "out of memory";
   } else if (setjmp(png_jmpbuf(png))) {
-    error = "libpng could not write it";
+    error = message;
   } else {
     png_init_io(png, file);
     png_set_IHDR(png, info, png_uint_32(p.width), png_uint_32(p.height), 8,
