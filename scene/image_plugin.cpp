@@ -44,9 +44,11 @@ ImagePlugin* load() {
     if (entry) return entry();  // (never closed: its objects live as long as the process)
     errors += "; " + path.string() + ": no isotraceImagePlugin";
   }
-  throw PluginMissing(std::string("cannot load ") + kLibrary + ", isotrace's OpenImageIO reader and writer" +
-                      (errors.empty() ? " (not found beside the program, in its build folder or in $ISOTRACE_PLUGIN_DIR)"
-                                      : errors));
+  throw PluginMissing(
+      std::string("cannot load ") + kLibrary + ", isotrace's OpenImageIO reader and writer" +
+      (errors.empty()
+           ? " (not found beside the program, in its build folder or in $ISOTRACE_PLUGIN_DIR)"
+           : errors));
 }
 
 }  // namespace

@@ -32,8 +32,8 @@ class ImagePlugin {
   // The image in the file `name` (bytes == nullptr), or in `size` bytes in memory, of the format
   // `name`'s extension says (the bytes stay the caller's, alive until the reader is gone).
   // nullptr, with `error` set, if it cannot be opened.
-  virtual std::unique_ptr<ImageReader> open(const std::string& name, const unsigned char* bytes, size_t size,
-                                            std::string& error) = 0;
+  virtual std::unique_ptr<ImageReader> open(const std::string& name, const unsigned char* bytes,
+                                            size_t size, std::string& error) = 0;
   // Writes `path` (its extension picks the format) from pixels of `channels` interleaved
   // channels, 8-bit or float, with string attributes; "" on success, else the error.
   struct Pixels {
@@ -50,8 +50,9 @@ class ImagePlugin {
                                  std::vector<unsigned char>& out) = 0;
   // Draws `text` into float RGB pixels (width x height) with its baseline at y, starting at x
   // (align 0), ending there (1) or centred on it (2), in the TrueType `font` at `size` pixels.
-  virtual std::string drawText(float* rgb, int width, int height, int x, int y, const std::string& text, int size,
-                               const std::string& font, const float color[3], int align) = 0;
+  virtual std::string drawText(float* rgb, int width, int height, int x, int y,
+                               const std::string& text, int size, const std::string& font,
+                               const float color[3], int align) = 0;
 };
 
 // The plugin cannot be loaded (an installation without it): not the input's fault.

@@ -12,7 +12,8 @@ namespace {
 
 class OiioReader : public ImageReader {
  public:
-  OiioReader(std::unique_ptr<OIIO::Filesystem::IOMemReader> memory, std::unique_ptr<OIIO::ImageInput> in)
+  OiioReader(std::unique_ptr<OIIO::Filesystem::IOMemReader> memory,
+             std::unique_ptr<OIIO::ImageInput> in)
       : m_memory(std::move(memory)), m_in(std::move(in)) {
     const OIIO::ImageSpec& spec = m_in->spec();
     width = spec.width;
@@ -35,10 +36,12 @@ class OiioReader : public ImageReader {
 
 class OiioPlugin : public ImagePlugin {
  public:
-  std::unique_ptr<ImageReader> open(const std::string& name, const unsigned char* bytes, size_t size,
-                                    std::string& error) override {
+  std::unique_ptr<ImageReader> open(const std::string& name, const unsigned char* bytes,
+                                    size_t size, std::string& error) override {
     std::unique_ptr<OIIO::Filesystem::IOMemReader> memory;
-    if (bytes) memory = std::make_unique<OIIO::Filesystem::IOMemReader>(const_cast<unsigned char*>(bytes), size);
+    if (bytes)
+      memory =
+          std::make_unique<OIIO::Filesystem::IOMemReader>(const_cast<unsigned char*>(bytes), size);
     auto in = OIIO::ImageInput::open(name, nullptr, memory.get());
     if (!in) {
       error = OIIO::geterror();
@@ -48,15 +51,18 @@ class OiioPlugin : public ImagePlugin {
     return std::make_unique<OiioReader>(std::move(memory), std::move(in));
   }
 
-  std::string write(const std::string& path, const Pixels& p, const std::map<std::string, std::string>& metadata) override {
-    OIIO::ImageSpec spec(p.width, p.height, p.channels, p.floats ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
+  std::string write(const std::string& path, const Pixels& p,
+                    const std::map<std::string, std::string>& metadata) override {
+    OIIO::ImageSpec spec(p.width, p.height, p.channels,
+                         p.floats ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
     spec.channelnames = p.names;
     spec.alpha_channel = p.alphaChannel;
     for (const auto& [key, value] : metadata) spec.attribute(key, value);
     auto out = OIIO::ImageOutput::create(path);
     bool ok = out && out->open(path, spec);
     if (ok) {
-      ok = p.floats ? out->write_image(OIIO::TypeDesc::FLOAT, p.floats) : out->write_image(OIIO::TypeDesc::UINT8, p.bytes);
+      ok = p.floats ? out->write_image(OIIO::TypeDesc::FLOAT, p.floats)
+                    : out->write_image(OIIO::TypeDesc::UINT8, p.bytes);
       ok = out->close() && ok;
     }
     if (ok) return "";
@@ -64,25 +70,31 @@ class OiioPlugin : public ImagePlugin {
     return why.empty() ? "cannot write the image" : why;
   }
 
-  std::string encodeJpeg(const uint8_t* rgb, int width, int height, int quality, std::vector<unsigned char>& bytes) override {
+  std::string encodeJpeg(const uint8_t* rgb, int width, int height, int quality,
+                         std::vector<unsigned char>& bytes) override {
     OIIO::Filesystem::IOVecOutput memory(bytes);
     OIIO::ImageSpec spec(width, height, 3, OIIO::TypeDesc::UINT8);
     spec.attribute("Compression", "jpeg:" + std::to_string(quality));
     void* proxy = &memory;
     spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy);
     auto out = OIIO::ImageOutput::create("frame.jpg");
-    if (!out || !out->open("frame.jpg", spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb) || !out->close())
+    if (!out || !out->open("frame.jpg", spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb) ||
+        !out->close())
       return out ? out->geterror() : OIIO::geterror();
     return "";
   }
 
-  std::string drawText(float* rgb, int width, int height, int x, int y, const std::string& text, int size,
-                       const std::string& font, const float color[3], int align) override {
-    OIIO::ImageBuf image(OIIO::ImageSpec(width, height, 3, OIIO::TypeDesc::FLOAT), rgb);  // wraps the caller's pixels
-    const auto alignX = align == 1 ? OIIO::ImageBufAlgo::TextAlignX::Right
+  std::string drawText(float* rgb, int width, int height, int x, int y, const std::string& text,
+                       int size, const std::string& font, const float color[3],
+                       int align) override {
+    OIIO::ImageBuf image(OIIO::ImageSpec(width, height, 3, OIIO::TypeDesc::FLOAT),
+                         rgb);  // wraps the caller's pixels
+    const auto alignX = align == 1   ? OIIO::ImageBufAlgo::TextAlignX::Right
                         : align == 2 ? OIIO::ImageBufAlgo::TextAlignX::Center
                                      : OIIO::ImageBufAlgo::TextAlignX::Left;
-    if (OIIO::ImageBufAlgo::render_text(image, x, y, text, size, font, OIIO::cspan<float>(color, 3), alignX)) return "";
+    if (OIIO::ImageBufAlgo::render_text(image, x, y, text, size, font, OIIO::cspan<float>(color, 3),
+                                        alignX))
+      return "";
     const std::string why = image.geterror();
     return why.empty() ? "cannot draw text" : why;
   }
