@@ -176,6 +176,15 @@ std::vector<uint8_t> displayFrame(const Film& film, bool signedData, const Displ
 
 namespace {
 
+// An image as writeExr and writePng take it: `channels` interleaved channels of 8-bit values or
+// floats, row by row, and their names (EXR's).
+struct ImageToWrite {
+  int width = 0, height = 0, channels = 0;
+  std::vector<std::string> names;
+  const uint8_t* bytes = nullptr;  // or
+  const float* floats = nullptr;
+};
+
 // The local time as EXR's capDate wants it: "YYYY:MM:DD HH:MM:SS".
 std::string nowStamp() {
   const std::time_t now = std::time(nullptr);
@@ -188,7 +197,7 @@ std::string nowStamp() {
 
 // Float channels, zip-compressed scan lines, the metadata as string attributes (what OpenImageIO
 // wrote before, written with OpenEXR itself); "" or the error.
-std::string writeExr(const std::string& path, const ImagePlugin::Pixels& p, const std::map<std::string, std::string>& metadata) {
+std::string writeExr(const std::string& path, const ImageToWrite& p, const std::map<std::string, std::string>& metadata) {
   try {
     Imf::Header header(p.width, p.height);
     header.compression() = Imf::ZIP_COMPRESSION;
@@ -218,7 +227,7 @@ std::string writeExr(const std::string& path, const ImagePlugin::Pixels& p, cons
 void pngWarning(png_structp, png_const_charp) {}
 
 // 8-bit RGB or RGBA with the metadata as text chunks and the sRGB chunk; "" or the error.
-std::string writePng(const std::string& path, const ImagePlugin::Pixels& p, const std::map<std::string, std::string>& metadata) {
+std::string writePng(const std::string& path, const ImageToWrite& p, const std::map<std::string, std::string>& metadata) {
   // (Everything with a destructor is made before setjmp: libpng's errors jump back past the rest.)
   std::vector<png_text> texts;
   for (const auto& [key, value] : metadata) {
@@ -316,17 +325,17 @@ void writeImage(const std::string& path, const Film& film, bool signedData,
         if (alpha) bytes[pixel * channels + 3] = uint8_t(std::lround(std::clamp(a, 0.f, 1.f) * 255));
       }
   }
-  ImagePlugin::Pixels pixels;
-  pixels.width = w;
-  pixels.height = h + legendRows;
-  pixels.channels = channels;
-  pixels.names = names;
-  pixels.alphaChannel = alpha ? 3 : -1;
-  pixels.floats = exr ? floats.data() : nullptr;
-  pixels.bytes = exr ? nullptr : bytes.data();
-  const std::string why = format == ImageFormat::Exr   ? writeExr(temp.string(), pixels, metadata)
-                          : format == ImageFormat::Png ? writePng(temp.string(), pixels, metadata)
-                                                       : imagePlugin().write(temp.string(), pixels, metadata);
+  ImageToWrite image;
+  image.width = w;
+  image.height = h + legendRows;
+  image.channels = channels;
+  image.names = names;
+  image.floats = exr ? floats.data() : nullptr;
+  image.bytes = exr ? nullptr : bytes.data();
+  const std::string why = format == ImageFormat::Exr   ? writeExr(temp.string(), image, metadata)
+                          : format == ImageFormat::Png ? writePng(temp.string(), image, metadata)
+                                                       : imagePlugin().writeJpeg(temp.string(), bytes.data(), w,
+                                                                                 h + legendRows, metadata);
   std::error_code ec;
   if (!why.empty()) {
     fs::remove(temp, ec);

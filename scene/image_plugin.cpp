@@ -1,7 +1,6 @@
 #include "scene/image_plugin.h"
 
 #include <dlfcn.h>
-#include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>

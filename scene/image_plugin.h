@@ -34,17 +34,10 @@ class ImagePlugin {
   // nullptr, with `error` set, if it cannot be opened.
   virtual std::unique_ptr<ImageReader> open(const std::string& name, const unsigned char* bytes,
                                             size_t size, std::string& error) = 0;
-  // Writes `path` (its extension picks the format) from pixels of `channels` interleaved
-  // channels, 8-bit or float, with string attributes; "" on success, else the error.
-  struct Pixels {
-    int width = 0, height = 0, channels = 0;
-    std::vector<std::string> names;
-    int alphaChannel = -1;
-    const uint8_t* bytes = nullptr;  // or
-    const float* floats = nullptr;
-  };
-  virtual std::string write(const std::string& path, const Pixels& pixels,
-                            const std::map<std::string, std::string>& metadata) = 0;
+  // Writes 8-bit RGB (width x height, row by row) as the JPEG file `path`, with string
+  // attributes; "" on success, else the error. (EXR and PNG are written without the plugin.)
+  virtual std::string writeJpeg(const std::string& path, const uint8_t* rgb, int width, int height,
+                                const std::map<std::string, std::string>& metadata) = 0;
   // 8-bit RGB as a JPEG file's bytes.
   virtual std::string encodeJpeg(const uint8_t* rgb, int width, int height, int quality,
                                  std::vector<unsigned char>& out) = 0;

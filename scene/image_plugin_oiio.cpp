@@ -51,18 +51,14 @@ class OiioPlugin : public ImagePlugin {
     return std::make_unique<OiioReader>(std::move(memory), std::move(in));
   }
 
-  std::string write(const std::string& path, const Pixels& p,
-                    const std::map<std::string, std::string>& metadata) override {
-    OIIO::ImageSpec spec(p.width, p.height, p.channels,
-                         p.floats ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
-    spec.channelnames = p.names;
-    spec.alpha_channel = p.alphaChannel;
+  std::string writeJpeg(const std::string& path, const uint8_t* rgb, int width, int height,
+                        const std::map<std::string, std::string>& metadata) override {
+    OIIO::ImageSpec spec(width, height, 3, OIIO::TypeDesc::UINT8);
     for (const auto& [key, value] : metadata) spec.attribute(key, value);
     auto out = OIIO::ImageOutput::create(path);
     bool ok = out && out->open(path, spec);
     if (ok) {
-      ok = p.floats ? out->write_image(OIIO::TypeDesc::FLOAT, p.floats)
-                    : out->write_image(OIIO::TypeDesc::UINT8, p.bytes);
+      ok = out->write_image(OIIO::TypeDesc::UINT8, rgb);
       ok = out->close() && ok;
     }
     if (ok) return "";
