@@ -40,13 +40,17 @@ def test_iso_sweep_frames_differ(tmp_path):
     assert not np.array_equal(a, b)
 
 
-def run_notebook(tmp_path, name):
-    """Runs examples/python/NAME top to bottom; the outputs of its code cells (none an error)."""
+def run_notebook(tmp_path, name, temp=None):
+    """Runs examples/python/NAME top to bottom; the outputs of its code cells (none an error).
+    `temp`: the kernel's temporary folder (TMPDIR)."""
     import json
     out = tmp_path / name
+    env = dict(os.environ, PYDEVD_DISABLE_FILE_VALIDATION="1")
+    if temp:
+        env["TMPDIR"] = str(temp)
     run = subprocess.run([sys.executable, "-m", "nbconvert", "--to", "notebook", "--execute",
                           os.path.join(EXAMPLES, name), "--output", str(out)],
-                         capture_output=True, text=True, timeout=600, env=dict(os.environ, PYDEVD_DISABLE_FILE_VALIDATION="1"))
+                         capture_output=True, text=True, timeout=600, env=env)
     assert run.returncode == 0, run.stderr
     cells = json.loads(out.read_text())["cells"]
     outputs = [o for c in cells if c["cell_type"] == "code" for o in c.get("outputs", [])]
@@ -64,8 +68,14 @@ def test_the_notebook_runs_top_to_bottom(tmp_path):
 
 def test_the_time_series_notebook_renders_a_sequence_from_numpy(tmp_path):
     import base64
-    outputs = run_notebook(tmp_path, "time_series.ipynb")
-    assert any("12 frames" in "".join(o.get("text", [])) for o in outputs)
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    outputs = run_notebook(tmp_path, "time_series.ipynb", temp)
+    texts = ["".join(o.get("text", [])) for o in outputs]
+    assert any("12 frames" in t for t in texts)
+    # The frames were written as numbered images, into a folder the notebook removes again.
+    assert any(t.startswith("12 images: 0000.png, 0001.png, 0002.png") for t in texts), texts
+    assert not [p for p in temp.iterdir() if p.name.startswith("isotrace-frames-")]
     images = images_of(outputs)
     assert len(images) == 3
     # The blobs move: the frames shown differ.
