@@ -112,7 +112,10 @@ def main():
         for flag in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1000,700"):
             options.add_argument(flag)
         options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-        driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+        # Chromium's temporary files (its profile singleton's folder, which it leaves behind in
+        # TMPDIR on every run) go into the test's own folder, removed below.
+        service = Service("/usr/bin/chromedriver", env=dict(os.environ, TMPDIR=work))
+        driver = webdriver.Chrome(service=service, options=options)
         wait = WebDriverWait(driver, 120, poll_frequency=0.02)  # a safety net, not a pace
         driver.get(url)
 
