@@ -220,8 +220,9 @@ std::string writeExr(const std::string& path, const ImageToWrite& p, const std::
 
 // libpng's error handler: the message kept for writePng (libpng's own would print it), then back
 // to its setjmp. Warnings are dropped: the message of a failure is the error's.
+constexpr size_t kPngMessage = 200;  // the room writePng gives the message
 [[noreturn]] void pngError(png_structp png, png_const_charp message) {
-  std::snprintf(static_cast<char*>(png_get_error_ptr(png)), 200, "%s", message);
+  std::snprintf(static_cast<char*>(png_get_error_ptr(png)), kPngMessage, "%s", message);
   png_longjmp(png, 1);
 }
 void pngWarning(png_structp, png_const_charp) {}
@@ -240,7 +241,7 @@ std::string writePng(const std::string& path, const ImageToWrite& p, const std::
   }
   std::FILE* file = std::fopen(path.c_str(), "wb");
   if (!file) return std::string("cannot open the file: ") + std::strerror(errno);
-  char message[200] = "";
+  char message[kPngMessage] = "";
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, message, pngError, pngWarning);
   png_infop info = png ? png_create_info_struct(png) : nullptr;
   const char* volatile error = nullptr;  // (set after a longjmp: volatile)
